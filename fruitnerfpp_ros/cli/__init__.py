@@ -1,0 +1,1 @@
+"""The ``fruitnerfpp`` command line: one module per subcommand group."""

@@ -1,0 +1,56 @@
+"""The count: fruits found by clustering, the record every output (counts.json, ROS topics) is made from."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ['Fruit', 'CountResult']
+
+
+@dataclass(frozen=True)
+class Fruit:
+    """One counted fruit.
+
+    Attributes:
+        id: cluster id, starting at 1 (0 is noise everywhere).
+        center: [3] robust (median) centre in metres, world frame.
+        diameter_m: estimated diameter in metres.
+        extent_m: [3] axis-aligned size of the cluster in metres.
+        n_points: number of cloud points in the cluster.
+    """
+
+    id: int
+    center: np.ndarray
+    diameter_m: float
+    extent_m: np.ndarray
+    n_points: int
+
+    def to_json(self) -> dict[str, Any]:
+        return {'id': int(self.id), 'center': [float(v) for v in self.center], 'diameter': float(self.diameter_m),
+                'extent': [float(v) for v in self.extent_m], 'n_points': int(self.n_points)}
+
+
+@dataclass(frozen=True)
+class CountResult:
+    """Clusters of a fruit point cloud.
+
+    Attributes:
+        labels: [N] int32 cluster id per cloud point (0 = noise / unassigned).
+        fruits: one record per cluster, ids 1..count in order.
+        stats: free-form figures for reports (timings, partition count...).
+    """
+
+    labels: np.ndarray
+    fruits: list[Fruit]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def count(self) -> int:
+        return len(self.fruits)
+
+    def centers(self) -> np.ndarray:
+        """[count, 3] fruit centres."""
+        return np.array([f.center for f in self.fruits], dtype=np.float64).reshape(-1, 3)

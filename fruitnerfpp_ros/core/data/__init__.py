@@ -1,0 +1,1 @@
+"""Datasets: the transforms.json format, loading images/masks/poses, scene bounds, ray batches."""

@@ -1,0 +1,201 @@
+"""The transforms.json dataset format (nerfstudio convention plus per-frame instance/semantic masks).
+
+Layout of a dataset directory::
+
+    transforms.json           # this module reads and writes it
+    images/0000.png           # RGB
+    instances/0000.png        # 16-bit instance ids, 0 = background, k = fruit k (per-image labels)
+    semantics/0000.png        # fruit = 255, rest = 0 (optional: derived from instances when absent)
+    gt_fruits.json            # optional ground truth (synthetic data)
+    sparse_pc.ply             # optional sparse geometry (``ply_file_path``), used for scene bounds
+
+``transform_matrix`` is camera-to-world with OpenGL camera axes (x right, y up, z back); ``cx, cy`` put the
+image's top-left corner at (0, 0). Intrinsics are global keys, and a frame may override them with its own
+``fl_x, fl_y, cx, cy, w, h`` keys (as nerfstudio allows). Paths are relative to the dataset directory.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fruitnerfpp_ros.errors import DatasetError
+
+__all__ = ['CameraIntrinsics', 'FrameEntry', 'TransformsFile', 'read_transforms', 'write_transforms',
+           'TRANSFORMS_NAME']
+
+TRANSFORMS_NAME = 'transforms.json'
+_INTRINSIC_KEYS = ('fl_x', 'fl_y', 'cx', 'cy', 'w', 'h')
+_DISTORTION_KEYS = ('k1', 'k2', 'k3', 'k4', 'p1', 'p2')
+
+
+@dataclass(frozen=True)
+class CameraIntrinsics:
+    """Pinhole intrinsics in pixels, principal point with the top-left image corner at (0, 0).
+
+    Distortion coefficients are kept for completeness; datasets written by this package are undistorted.
+    """
+
+    fl_x: float
+    fl_y: float
+    cx: float
+    cy: float
+    w: int
+    h: int
+    distortion: dict[str, float] = field(default_factory=dict)
+
+    def K(self) -> np.ndarray:
+        """3x3 intrinsic matrix (top-left-corner convention)."""
+        return np.array([[self.fl_x, 0.0, self.cx], [0.0, self.fl_y, self.cy], [0.0, 0.0, 1.0]])
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {'fl_x': self.fl_x, 'fl_y': self.fl_y, 'cx': self.cx, 'cy': self.cy,
+                               'w': int(self.w), 'h': int(self.h)}
+        out.update({k: float(v) for k, v in self.distortion.items()})
+        return out
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any], where: str) -> 'CameraIntrinsics':
+        missing = [k for k in _INTRINSIC_KEYS if k not in data]
+        if missing:
+            raise DatasetError(f'{where}: missing intrinsic key(s) {", ".join(missing)}')
+        try:
+            values = {k: float(data[k]) for k in _INTRINSIC_KEYS}
+            distortion = {k: float(data[k]) for k in _DISTORTION_KEYS if k in data}
+        except (TypeError, ValueError) as err:
+            raise DatasetError(f'{where}: non-numeric intrinsics: {err}') from err
+        if not all(np.isfinite(list(values.values()))) or values['w'] <= 0 or values['h'] <= 0:
+            raise DatasetError(f'{where}: invalid intrinsics {values}')
+        return cls(values['fl_x'], values['fl_y'], values['cx'], values['cy'], int(values['w']),
+                   int(values['h']), distortion)
+
+
+@dataclass(frozen=True)
+class FrameEntry:
+    """One frame of a transforms.json.
+
+    Attributes:
+        file_path: RGB image path, relative to the dataset directory.
+        T_world_camera: 4x4 camera-to-world transform, OpenGL camera axes, metres.
+        instance_path: 16-bit instance-id PNG (0 = background), relative path, or None.
+        semantic_path: fruit mask PNG (255 = fruit), relative path, or None.
+        intrinsics: per-frame intrinsics overriding the global ones, or None.
+        stamp_ns: acquisition time in nanoseconds (ROS keyframes), or None.
+    """
+
+    file_path: str
+    T_world_camera: np.ndarray
+    instance_path: str | None = None
+    semantic_path: str | None = None
+    intrinsics: CameraIntrinsics | None = None
+    stamp_ns: int | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = {'file_path': self.file_path,
+                               'transform_matrix': np.asarray(self.T_world_camera, dtype=float).tolist()}
+        if self.instance_path is not None:
+            out['instance_path'] = self.instance_path
+        if self.semantic_path is not None:
+            out['semantic_path'] = self.semantic_path
+        if self.intrinsics is not None:
+            out.update(self.intrinsics.to_json())
+        if self.stamp_ns is not None:
+            out['stamp_ns'] = int(self.stamp_ns)
+        return out
+
+
+@dataclass
+class TransformsFile:
+    """The content of a transforms.json.
+
+    Attributes:
+        intrinsics: global intrinsics, or None when every frame has its own.
+        frames: frames in file order.
+        ply_file_path: optional sparse point cloud (relative path) for scene bounds.
+        extra: other top-level keys, kept as they are (e.g. ``fruit_types``, ``generator``).
+    """
+
+    intrinsics: CameraIntrinsics | None
+    frames: list[FrameEntry]
+    ply_file_path: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def intrinsics_of(self, index: int) -> CameraIntrinsics:
+        """Intrinsics of frame ``index`` (its own, else the global ones)."""
+        own = self.frames[index].intrinsics
+        if own is not None:
+            return own
+        if self.intrinsics is None:
+            raise DatasetError(f'frame {index} ({self.frames[index].file_path}) has no intrinsics')
+        return self.intrinsics
+
+    def with_frames(self, frames: list[FrameEntry]) -> 'TransformsFile':
+        return replace(self, frames=list(frames))
+
+    def to_json(self) -> dict[str, Any]:
+        out: dict[str, Any] = dict(self.extra)
+        if self.intrinsics is not None:
+            out.update(self.intrinsics.to_json())
+        if self.ply_file_path is not None:
+            out['ply_file_path'] = self.ply_file_path
+        out['frames'] = [f.to_json() for f in self.frames]
+        return out
+
+
+def read_transforms(dataset_dir: str | Path) -> TransformsFile:
+    """Parse ``dataset_dir/transforms.json`` (does not open images).
+
+    Raises:
+        DatasetError: the file is missing, not JSON, has no frames, or a frame is malformed (NaN pose...).
+    """
+    path = Path(dataset_dir) / TRANSFORMS_NAME
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError as err:
+        raise DatasetError(f'{path}: not found (expected a nerfstudio-style transforms.json)') from err
+    except json.JSONDecodeError as err:
+        raise DatasetError(f'{path}: not valid JSON: {err}') from err
+    if not isinstance(data, dict) or not isinstance(data.get('frames'), list):
+        raise DatasetError(f'{path}: expected an object with a "frames" list')
+    if not data['frames']:
+        raise DatasetError(f'{path}: the dataset has no frames')
+    has_global = all(k in data for k in _INTRINSIC_KEYS)
+    intrinsics = CameraIntrinsics.from_json(data, str(path)) if has_global else None
+    frames = []
+    for i, raw in enumerate(data['frames']):
+        where = f'{path} frame {i}'
+        if not isinstance(raw, dict) or 'file_path' not in raw or 'transform_matrix' not in raw:
+            raise DatasetError(f'{where}: needs "file_path" and "transform_matrix"')
+        try:
+            T = np.asarray(raw['transform_matrix'], dtype=np.float64)
+        except (TypeError, ValueError) as err:
+            raise DatasetError(f'{where} ({raw["file_path"]}): transform_matrix is not numeric') from err
+        if T.shape == (3, 4):
+            T = np.vstack([T, [0.0, 0.0, 0.0, 1.0]])
+        if T.shape != (4, 4) or not np.all(np.isfinite(T)):
+            raise DatasetError(f'{where} ({raw["file_path"]}): transform_matrix must be a finite 4x4 matrix')
+        own = CameraIntrinsics.from_json(raw, where) if any(k in raw for k in _INTRINSIC_KEYS) else None
+        if own is None and intrinsics is None:
+            raise DatasetError(f'{where} ({raw["file_path"]}): no intrinsics (neither global nor per frame)')
+        frames.append(FrameEntry(str(raw['file_path']), T, raw.get('instance_path'), raw.get('semantic_path'),
+                                 own, raw.get('stamp_ns')))
+    known = set(_INTRINSIC_KEYS) | set(_DISTORTION_KEYS) | {'frames', 'ply_file_path'}
+    extra = {k: v for k, v in data.items() if k not in known}
+    return TransformsFile(intrinsics, frames, data.get('ply_file_path'), extra)
+
+
+def write_transforms(dataset_dir: str | Path, transforms: TransformsFile) -> Path:
+    """Write ``dataset_dir/transforms.json`` atomically (write a temp file, then rename); returns its path."""
+    path = Path(dataset_dir) / TRANSFORMS_NAME
+    tmp = path.with_name(path.name + '.tmp')
+    with open(tmp, 'w') as f:
+        json.dump(transforms.to_json(), f, indent=1)
+        f.flush()
+        os.fsync(f.fileno())
+    tmp.replace(path)
+    return path

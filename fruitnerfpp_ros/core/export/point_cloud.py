@@ -1,0 +1,49 @@
+"""The fruit point cloud: the record passed from export to clustering (and to the ROS cloud publisher)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ['FruitPointCloud']
+
+
+@dataclass(frozen=True)
+class FruitPointCloud:
+    """Points kept by the export, in the dataset's world frame.
+
+    Attributes:
+        xyz: [N, 3] float32 positions in metres.
+        rgb: [N, 3] uint8 colours.
+        semantic: [N] float32 fruit probability in [0, 1].
+        embedding: [N, D] float32 instance embeddings (L2-normalised).
+    """
+
+    xyz: np.ndarray
+    rgb: np.ndarray
+    semantic: np.ndarray
+    embedding: np.ndarray
+
+    def __post_init__(self) -> None:
+        n = len(self.xyz)
+        if self.xyz.shape != (n, 3) or self.rgb.shape != (n, 3) or self.semantic.shape != (n,) \
+                or self.embedding.ndim != 2 or len(self.embedding) != n:
+            raise ValueError(f'inconsistent FruitPointCloud shapes: xyz {self.xyz.shape}, rgb {self.rgb.shape}, '
+                             f'semantic {self.semantic.shape}, embedding {self.embedding.shape}')
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+    @property
+    def embedding_dim(self) -> int:
+        return int(self.embedding.shape[1])
+
+    @classmethod
+    def empty(cls, embedding_dim: int) -> 'FruitPointCloud':
+        return cls(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, np.float32),
+                   np.zeros((0, embedding_dim), np.float32))
+
+    def subset(self, mask_or_index: np.ndarray) -> 'FruitPointCloud':
+        return FruitPointCloud(self.xyz[mask_or_index], self.rgb[mask_or_index], self.semantic[mask_or_index],
+                               self.embedding[mask_or_index])
