@@ -1,0 +1,181 @@
+"""Write a synthetic scene as a rosbag2 recording (rosbags; mcap by default, sqlite3 optional).
+
+Topics (identical header stamps per frame; images carry frame_id ``camera_optical``):
+
+- ``/camera/image_raw``      sensor_msgs/msg/Image, rgb8
+- ``/camera/camera_info``    sensor_msgs/msg/CameraInfo, ROS principal point (cx_ros = cx_transforms - 0.5)
+- ``/camera/pose``           geometry_msgs/msg/PoseStamped, pose of ``camera_optical`` in ``map`` (REP-103 axes)
+- ``/camera/instance_mask``  sensor_msgs/msg/Image, mono16 instance ids (0 = background)
+- ``/tf``                    tf2_msgs/msg/TFMessage, ``map`` -> ``base_link``
+- ``/tf_static``             tf2_msgs/msg/TFMessage, ``base_link`` -> ``camera_optical`` (once, latched QoS)
+
+``base_link`` is chosen so that ``T_map_base_link @ T_base_link_camera_optical`` equals the optical pose.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+from rosbags.rosbag2 import StoragePlugin, Writer
+from rosbags.typesys import Stores, get_typestore
+from scipy.spatial.transform import Rotation
+
+from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics
+from fruitnerfpp_ros.core.geometry import (invert_transform, optical_from_opengl,
+                                           principal_point_ros_from_transforms, quaternion_from_transform)
+from fruitnerfpp_ros.errors import SynthError
+
+__all__ = ['BagWriter', 'TOPICS', 'T_BASE_LINK_CAMERA_OPTICAL', 'BAG_START_NS', 'FRAME_PERIOD_NS',
+           'MAP_FRAME', 'BASE_FRAME', 'CAMERA_FRAME', 'STORAGES']
+
+TOPICS = {
+    'image': '/camera/image_raw',
+    'camera_info': '/camera/camera_info',
+    'pose': '/camera/pose',
+    'instance_mask': '/camera/instance_mask',
+    'tf': '/tf',
+    'tf_static': '/tf_static',
+}
+MAP_FRAME, BASE_FRAME, CAMERA_FRAME = 'map', 'base_link', 'camera_optical'
+STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
+#: Stamp of the first frame (fixed, so bags are byte-identical between runs), nanoseconds.
+BAG_START_NS = 1_700_000_000_000_000_000
+#: Time between frames, nanoseconds (10 Hz).
+FRAME_PERIOD_NS = 100_000_000
+
+#: Fixed camera mount: optical axes (z forward, x right, y down) on a base_link with x forward, z up; the camera
+#: sits 0.2 m ahead of and 0.5 m above base_link, pitched 10 degrees down.
+T_BASE_LINK_CAMERA_OPTICAL = np.eye(4)
+T_BASE_LINK_CAMERA_OPTICAL[:3, :3] = Rotation.from_euler('y', 10.0, degrees=True).as_matrix() @ np.array(
+    [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+T_BASE_LINK_CAMERA_OPTICAL[:3, 3] = [0.2, 0.0, 0.5]
+
+_FOREVER = QosTime(2147483647, 4294967295)
+#: Offered QoS of /tf_static: reliable, transient local (latched), as robot_state_publisher offers it.
+_LATCHED_QOS = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, _FOREVER,
+                   _FOREVER, QosLiveliness.AUTOMATIC, _FOREVER, False)
+
+
+class BagWriter:
+    """Context manager writing frames of a synthetic scene into a rosbag2 directory.
+
+    Args:
+        path: bag directory to create. An existing rosbag2 directory (with ``metadata.yaml``) is replaced; any
+            other existing path is refused.
+        storage: ``mcap`` (default) or ``sqlite3``.
+
+    Raises:
+        SynthError: unknown storage, or ``path`` exists and is not a bag, or cannot be written.
+    """
+
+    def __init__(self, path: str | Path, storage: str = 'mcap') -> None:
+        if storage not in STORAGES:
+            raise SynthError(f'unknown bag storage {storage!r}; expected one of {", ".join(STORAGES)}')
+        self.path = Path(path)
+        self.storage = storage
+        self.typestore = get_typestore(Stores.ROS2_JAZZY)
+        self._writer: Writer | None = None
+        self._conns: dict[str, Any] = {}
+        self._static_written = False
+
+    def __enter__(self) -> 'BagWriter':
+        if self.path.exists():
+            if self.path.is_dir() and (self.path / 'metadata.yaml').exists():
+                shutil.rmtree(self.path)
+            else:
+                raise SynthError(f'bag path {self.path} exists and is not a rosbag2 directory; choose another --bag')
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = Writer(self.path, version=9, storage_plugin=STORAGES[self.storage])
+            self._writer.open()
+        except OSError as err:
+            raise SynthError(f'cannot write bag {self.path}: {err.strerror or err}') from err
+        w, ts = self._writer, self.typestore
+        self._conns = {
+            'image': w.add_connection(TOPICS['image'], 'sensor_msgs/msg/Image', typestore=ts),
+            'camera_info': w.add_connection(TOPICS['camera_info'], 'sensor_msgs/msg/CameraInfo', typestore=ts),
+            'pose': w.add_connection(TOPICS['pose'], 'geometry_msgs/msg/PoseStamped', typestore=ts),
+            'instance_mask': w.add_connection(TOPICS['instance_mask'], 'sensor_msgs/msg/Image', typestore=ts),
+            'tf': w.add_connection(TOPICS['tf'], 'tf2_msgs/msg/TFMessage', typestore=ts),
+            'tf_static': w.add_connection(TOPICS['tf_static'], 'tf2_msgs/msg/TFMessage', typestore=ts,
+                                          offered_qos_profiles=[_LATCHED_QOS]),
+        }
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+
+    # ------------------------------------------------------------------ messages
+    def _header(self, stamp_ns: int, frame_id: str) -> Any:
+        T = self.typestore.types
+        stamp = T['builtin_interfaces/msg/Time'](sec=int(stamp_ns // 1_000_000_000),
+                                                 nanosec=int(stamp_ns % 1_000_000_000))
+        return T['std_msgs/msg/Header'](stamp=stamp, frame_id=frame_id)
+
+    def _image(self, stamp_ns: int, array: np.ndarray, encoding: str) -> Any:
+        h, w = array.shape[:2]
+        data = np.ascontiguousarray(array).astype(array.dtype.newbyteorder('<'), copy=False)
+        step = data.strides[0]
+        return self.typestore.types['sensor_msgs/msg/Image'](
+            header=self._header(stamp_ns, CAMERA_FRAME), height=h, width=w, encoding=encoding, is_bigendian=0,
+            step=step, data=np.frombuffer(data.tobytes(), dtype=np.uint8))
+
+    def _camera_info(self, stamp_ns: int, K: CameraIntrinsics) -> Any:
+        T = self.typestore.types
+        cx, cy = principal_point_ros_from_transforms(K.cx, K.cy)
+        roi = T['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
+        return T['sensor_msgs/msg/CameraInfo'](
+            header=self._header(stamp_ns, CAMERA_FRAME), height=K.h, width=K.w, distortion_model='plumb_bob',
+            d=np.zeros(5), k=np.array([K.fl_x, 0.0, cx, 0.0, K.fl_y, cy, 0.0, 0.0, 1.0]), r=np.eye(3).reshape(-1),
+            p=np.array([K.fl_x, 0.0, cx, 0.0, 0.0, K.fl_y, cy, 0.0, 0.0, 0.0, 1.0, 0.0]), binning_x=0, binning_y=0,
+            roi=roi)
+
+    def _pose(self, T_map_frame: np.ndarray) -> Any:
+        T = self.typestore.types
+        t, q = quaternion_from_transform(T_map_frame)
+        return T['geometry_msgs/msg/Pose'](position=T['geometry_msgs/msg/Point'](x=t[0], y=t[1], z=t[2]),
+                                           orientation=T['geometry_msgs/msg/Quaternion'](x=q[0], y=q[1], z=q[2],
+                                                                                         w=q[3]))
+
+    def _transform_stamped(self, stamp_ns: int, parent: str, child: str, T_parent_child: np.ndarray) -> Any:
+        T = self.typestore.types
+        t, q = quaternion_from_transform(T_parent_child)
+        transform = T['geometry_msgs/msg/Transform'](
+            translation=T['geometry_msgs/msg/Vector3'](x=t[0], y=t[1], z=t[2]),
+            rotation=T['geometry_msgs/msg/Quaternion'](x=q[0], y=q[1], z=q[2], w=q[3]))
+        return T['geometry_msgs/msg/TransformStamped'](header=self._header(stamp_ns, parent), child_frame_id=child,
+                                                       transform=transform)
+
+    def _write(self, key: str, stamp_ns: int, msg: Any) -> None:
+        assert self._writer is not None
+        conn = self._conns[key]
+        self._writer.write(conn, stamp_ns, self.typestore.serialize_cdr(msg, conn.msgtype))
+
+    def write_frame(self, stamp_ns: int, rgb: np.ndarray, instance: np.ndarray, T_world_camera: np.ndarray,
+                    K: CameraIntrinsics) -> None:
+        """Write one frame: RGB [H, W, 3] uint8, instance ids [H, W] uint16, camera-to-world pose in OpenGL axes
+        (transforms.json convention) and transforms.json intrinsics (top-left-corner principal point)."""
+        T_map_optical = optical_from_opengl(T_world_camera)
+        types = self.typestore.types
+        if not self._static_written:
+            tf_static = types['tf2_msgs/msg/TFMessage'](transforms=[
+                self._transform_stamped(stamp_ns, BASE_FRAME, CAMERA_FRAME, T_BASE_LINK_CAMERA_OPTICAL)])
+            self._write('tf_static', stamp_ns, tf_static)
+            self._static_written = True
+        T_map_base = T_map_optical @ invert_transform(T_BASE_LINK_CAMERA_OPTICAL)
+        self._write('tf', stamp_ns, types['tf2_msgs/msg/TFMessage'](transforms=[
+            self._transform_stamped(stamp_ns, MAP_FRAME, BASE_FRAME, T_map_base)]))
+        pose = types['geometry_msgs/msg/PoseStamped'](header=self._header(stamp_ns, MAP_FRAME),
+                                                      pose=self._pose(T_map_optical))
+        self._write('pose', stamp_ns, pose)
+        self._write('camera_info', stamp_ns, self._camera_info(stamp_ns, K))
+        self._write('image', stamp_ns, self._image(stamp_ns, rgb.astype(np.uint8), 'rgb8'))
+        self._write('instance_mask', stamp_ns, self._image(stamp_ns, instance.astype(np.uint16), 'mono16'))

@@ -1,0 +1,81 @@
+"""Deterministic writers of the synthetic dataset files: PNGs, gt_fruits.json, sparse_pc.ply.
+
+PNGs are written with OpenCV at a fixed compression level, JSON with sorted keys and rounded floats, so the same
+scene gives byte-identical files.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+from fruitnerfpp_ros.core.synthetic.scene import GtFruit
+from fruitnerfpp_ros.errors import SynthError
+
+__all__ = ['write_rgb_png', 'write_uint16_png', 'write_mask_png', 'write_gt_fruits', 'write_sparse_ply',
+           'GT_NAME', 'SPARSE_PLY_NAME']
+
+GT_NAME = 'gt_fruits.json'
+SPARSE_PLY_NAME = 'sparse_pc.ply'
+_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
+
+
+def _imwrite(path: Path, image: np.ndarray) -> None:
+    if not cv2.imwrite(str(path), image, _PNG_PARAMS):
+        raise SynthError(f'cannot write image {path}')
+
+
+def write_rgb_png(path: Path, rgb: np.ndarray) -> None:
+    """Write an RGB [H, W, 3] uint8 image as PNG."""
+    _imwrite(path, np.ascontiguousarray(rgb[..., ::-1]))
+
+
+def write_uint16_png(path: Path, ids: np.ndarray) -> None:
+    """Write [H, W] ids as a 16-bit single-channel PNG."""
+    _imwrite(path, ids.astype(np.uint16))
+
+
+def write_mask_png(path: Path, mask: np.ndarray) -> None:
+    """Write a boolean [H, W] mask as an 8-bit PNG (255 = true, 0 = false)."""
+    _imwrite(path, np.where(mask, 255, 0).astype(np.uint8))
+
+
+def _round(values: Any, digits: int = 6) -> list[float]:
+    return [round(float(v), digits) for v in np.asarray(values).reshape(-1)]
+
+
+def write_gt_fruits(path: Path, fruits: Sequence[GtFruit], n_views_visible: np.ndarray,
+                    extra: dict[str, Any] | None = None) -> None:
+    """Write ``gt_fruits.json``: ``{"fruits": [{"id", "type", "center", "radii", "diameter", "rotation",
+    "n_views_visible"}...], ...extra}``; metres, world frame (z up, ground z = 0)."""
+    records = []
+    for fruit, n_views in zip(fruits, n_views_visible):
+        records.append({
+            'id': int(fruit.id),
+            'type': fruit.type,
+            'center': _round(fruit.center),
+            'radii': _round(fruit.radii),
+            'diameter': round(float(2.0 * max(fruit.radii[0], fruit.radii[1])), 6),
+            'rotation': [_round(row) for row in fruit.rotation],
+            'n_views_visible': int(n_views),
+        })
+    data: dict[str, Any] = dict(extra or {})
+    data['fruits'] = records
+    path.write_text(json.dumps(data, indent=1, sort_keys=True) + '\n')
+
+
+def write_sparse_ply(path: Path, points: np.ndarray, colors: np.ndarray) -> None:
+    """Write a binary little-endian PLY of points [N, 3] (metres, float32) with colours [N, 3] uint8."""
+    vertex = np.zeros(len(points), dtype=[('x', '<f4'), ('y', '<f4'), ('z', '<f4'),
+                                          ('red', 'u1'), ('green', 'u1'), ('blue', 'u1')])
+    vertex['x'], vertex['y'], vertex['z'] = points[:, 0], points[:, 1], points[:, 2]
+    vertex['red'], vertex['green'], vertex['blue'] = colors[:, 0], colors[:, 1], colors[:, 2]
+    header = ('ply\nformat binary_little_endian 1.0\n'
+              f'element vertex {len(points)}\n'
+              'property float x\nproperty float y\nproperty float z\n'
+              'property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n')
+    path.write_bytes(header.encode('ascii') + vertex.tobytes())

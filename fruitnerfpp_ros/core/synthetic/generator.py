@@ -1,0 +1,190 @@
+"""``generate_orchard``: build, render and write one synthetic tree scene with exact ground truth.
+
+Output directory::
+
+    transforms.json     nerfstudio convention (OpenGL camera-to-world, top-left-corner cx, cy), per-frame
+                        instance_path and semantic_path, ply_file_path
+    images/0000.png     RGB
+    instances/0000.png  uint16 instance ids (0 = background, k = fruit k of gt_fruits.json)
+    semantics/0000.png  fruit = 255, rest = 0
+    gt_fruits.json      {"fruits": [{"id", "type", "center", "radii", "diameter", "rotation", "n_views_visible"}]}
+    sparse_pc.ply       a few thousand visible surface points (like a COLMAP sparse cloud)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from fruitnerfpp_ros.core.config_io import config_to_mapping
+from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, FrameEntry, TransformsFile, write_transforms
+from fruitnerfpp_ros.core.device import resolve_device
+from fruitnerfpp_ros.core.geometry import T_OPENGL_OPTICAL
+from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.synthetic.bag_writer import BAG_START_NS, FRAME_PERIOD_NS, BagWriter
+from fruitnerfpp_ros.core.synthetic.cameras import make_intrinsics, make_poses
+from fruitnerfpp_ros.core.synthetic.config import SynthConfig
+from fruitnerfpp_ros.core.synthetic.dataset_writer import (GT_NAME, SPARSE_PLY_NAME, write_gt_fruits,
+                                                           write_mask_png, write_rgb_png, write_sparse_ply,
+                                                           write_uint16_png)
+from fruitnerfpp_ros.core.synthetic.preview import preview_view_indices, write_preview
+from fruitnerfpp_ros.core.synthetic.rasterizer import Renderer
+from fruitnerfpp_ros.core.synthetic.scene import build_scene, fruit_type_counts
+from fruitnerfpp_ros.errors import ConfigError, SynthError
+
+__all__ = ['SynthResult', 'generate_orchard']
+
+
+@dataclass(frozen=True)
+class SynthResult:
+    """What :func:`generate_orchard` wrote.
+
+    Attributes:
+        dataset_dir: the output directory (holds transforms.json).
+        n_fruits: fruits on the tree (ids 1..n_fruits).
+        n_views: rendered views.
+        gt_path: path of gt_fruits.json.
+        transforms_path: path of transforms.json.
+        bag_path: rosbag2 directory, or None when no bag was asked for.
+        preview_path: contact sheet PNG, or None.
+        n_fruits_visible: fruits seen (at least one pixel) by at least one view.
+        seconds: wall time of the whole generation.
+    """
+
+    dataset_dir: Path
+    n_fruits: int
+    n_views: int
+    gt_path: Path
+    transforms_path: Path
+    bag_path: Path | None
+    preview_path: Path | None
+    n_fruits_visible: int
+    seconds: float
+
+
+def _prepare_out_dir(out_dir: Path, n_views: int) -> None:
+    try:
+        if out_dir.exists() and not out_dir.is_dir():
+            raise SynthError(f'output path {out_dir} exists and is not a directory')
+        for sub in ('images', 'instances', 'semantics'):
+            (out_dir / sub).mkdir(parents=True, exist_ok=True)
+        probe = out_dir / '.write_test'
+        probe.write_bytes(b'')
+        probe.unlink()
+        # Frames of an earlier, larger run would otherwise linger next to this run's frames.
+        for sub in ('images', 'instances', 'semantics'):
+            for stale in (out_dir / sub).glob('[0-9][0-9][0-9][0-9].png'):
+                if int(stale.stem) >= n_views:
+                    stale.unlink()
+    except OSError as err:
+        raise SynthError(f'cannot write to output directory {out_dir}: {err.strerror or err}') from err
+
+
+def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Path | None = None,
+                     bag_storage: str = 'mcap', preview: str | Path | None = None,
+                     progress: ProgressCallback | None = None) -> SynthResult:
+    """Generate one synthetic tree scene into ``out_dir`` (created), optionally a rosbag2 and a preview.
+
+    Args:
+        config: scene settings (same config and seed -> byte-identical files).
+        out_dir: dataset directory.
+        bag: rosbag2 directory to write (must not exist, or be a previous bag), or None.
+        bag_storage: ``mcap`` or ``sqlite3``.
+        preview: contact sheet PNG path (RGB | instance | semantic of a few views), or None.
+        progress: called with ``ProgressEvent('synth:render', view, views)`` after each view.
+
+    Raises:
+        SynthError: unwritable output, bad bag path or storage.
+        ConfigError: unknown device.
+    """
+    started = time.perf_counter()
+    progress = progress or ignore_progress
+    out_dir = Path(out_dir)
+    _prepare_out_dir(out_dir, config.views)
+    try:
+        device = resolve_device(config.device)
+    except ConfigError as err:
+        raise SynthError(str(err)) from err
+
+    scene = build_scene(config)
+    poses = make_poses(scene, config)
+    K = make_intrinsics(config)
+    renderer = Renderer(scene, device)
+    n_fruits = len(scene.fruits)
+    seen = np.zeros(n_fruits + 1, dtype=np.int64)
+    preview_idx = set(preview_view_indices(config.views)) if preview is not None else set()
+    preview_rgb, preview_inst, preview_labels = [], [], []
+    rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9C]))
+    per_view = int(np.ceil(config.sparse_points / config.views)) if config.sparse_points else 0
+    pc_points, pc_colors = [], []
+    frames = []
+    bag_ctx = BagWriter(bag, bag_storage) if bag is not None else contextlib.nullcontext()
+    progress(ProgressEvent('synth:render', 0, config.views, f'{n_fruits} fruits'))
+    with bag_ctx as bag_writer:
+        for i, T in enumerate(poses):
+            view = renderer.render(T, K)
+            name = f'{i:04d}.png'
+            write_rgb_png(out_dir / 'images' / name, view.rgb)
+            write_uint16_png(out_dir / 'instances' / name, view.instance)
+            write_mask_png(out_dir / 'semantics' / name, view.instance > 0)
+            seen += np.bincount(view.instance.reshape(-1).astype(np.int64), minlength=n_fruits + 1) > 0
+            stamp_ns = BAG_START_NS + i * FRAME_PERIOD_NS
+            frames.append(FrameEntry(f'images/{name}', T, f'instances/{name}', f'semantics/{name}',
+                                     stamp_ns=stamp_ns))
+            if per_view:
+                pts, cols = _sample_surface(view.depth, view.rgb, T, K, per_view, scene.bound_radius, rng)
+                pc_points.append(pts)
+                pc_colors.append(cols)
+            if bag_writer is not None:
+                bag_writer.write_frame(stamp_ns, view.rgb, view.instance, T, K)
+            if i in preview_idx:
+                preview_rgb.append(view.rgb)
+                preview_inst.append(view.instance)
+                preview_labels.append(f'view {i}')
+            progress(ProgressEvent('synth:render', i + 1, config.views))
+
+    ply_name = None
+    if per_view:
+        write_sparse_ply(out_dir / SPARSE_PLY_NAME, np.concatenate(pc_points), np.concatenate(pc_colors))
+        ply_name = SPARSE_PLY_NAME
+    counts = fruit_type_counts(config)
+    extra = {
+        'camera_model': 'OPENCV',
+        'fruit_types': sorted(counts),
+        'generator': {'name': 'fruitnerfpp synth', 'config': config_to_mapping(config)},
+        'frame': 'world: z up, metres, ground at z = 0, tree trunk at the origin',
+    }
+    transforms_path = write_transforms(out_dir, TransformsFile(K, frames, ply_name, extra))
+    gt_path = out_dir / GT_NAME
+    write_gt_fruits(gt_path, scene.fruits, seen[1:], {
+        'units': 'm', 'frame': 'world (z up, ground z = 0), same as transforms.json',
+        'counts': {k: v for k, v in sorted(counts.items())}, 'n_views': config.views})
+    preview_path = None
+    if preview is not None:
+        preview_path = Path(preview)
+        write_preview(preview_path, preview_rgb, preview_inst, preview_labels)
+    return SynthResult(out_dir, n_fruits, config.views, gt_path, transforms_path,
+                       Path(bag) if bag is not None else None, preview_path, int(np.count_nonzero(seen[1:])),
+                       time.perf_counter() - started)
+
+
+def _sample_surface(depth: np.ndarray, rgb: np.ndarray, T_world_camera: np.ndarray, K: CameraIntrinsics, count: int,
+                    bound_radius: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project ``count`` random non-sky pixels of one view near the tree into world points + colours."""
+    v, u = np.nonzero(np.isfinite(depth))
+    if len(v) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    pick = rng.choice(len(v), size=min(count * 2, len(v)), replace=False)
+    pick.sort()
+    v, u = v[pick], u[pick]
+    z = depth[v, u].astype(np.float64)
+    d_opt = np.stack([(u + 0.5 - K.cx) / K.fl_x, (v + 0.5 - K.cy) / K.fl_y, np.ones_like(z)], axis=1)
+    T_world_optical = T_world_camera @ T_OPENGL_OPTICAL
+    points = T_world_optical[:3, 3] + (d_opt * z[:, None]) @ T_world_optical[:3, :3].T
+    near = np.linalg.norm(points[:, :2], axis=1) < 1.5 * bound_radius
+    points, colors = points[near][:count], rgb[v, u][near][:count]
+    return points, colors
