@@ -1,0 +1,54 @@
+"""``fruitnerfpp replay BAG --out RUN_DIR``: count fruit in a recorded rosbag2 (sqlite3 or MCAP) offline."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from fruitnerfpp_ros.nodes.params import CounterSettings, load_parameter_file, settings_from_parameters
+
+__all__ = ['register', 'run', 'settings_from_args']
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        'replay', help='count fruit in a recorded rosbag2 (sqlite3 or MCAP)',
+        description='Read images, instance masks, poses and camera_info from a rosbag2 with rosbags, collect '
+                    'keyframes (RUN_DIR/keyframes), train, count, and write RUN_DIR/results.mcap with the '
+                    "fruit_counter node's output topics plus RUN_DIR/fruit_report.json.")
+    parser.add_argument('bag', type=Path, help='rosbag2 directory, or a single .mcap / .db3 file')
+    parser.add_argument('--out', type=Path, required=True, help='run directory to create / fill')
+    parser.add_argument('--params', type=Path, help='ROS 2 params file (e.g. config/fruit_counter.yaml): topics, '
+                        'pose source, keyframe selection, preset')
+    parser.add_argument('--preset', choices=('auto', 'tiny', 'default', 'paper'),
+                        help="training preset (overrides the params file; auto = default on CUDA, tiny on CPU)")
+    parser.add_argument('--device', help='torch device: auto, cpu, cuda, cuda:N')
+    parser.add_argument('--no-train', action='store_true', help='only collect keyframes')
+    parser.add_argument('--skip-training', action='store_true',
+                        help='reuse the model already trained in RUN_DIR: re-export and recount only')
+    parser.set_defaults(func=run)
+
+
+def settings_from_args(args: argparse.Namespace) -> CounterSettings:
+    """Settings from the params file, with --preset / --device on top."""
+    values = load_parameter_file(args.params) if args.params else {}
+    if args.preset:
+        values['preset'] = args.preset
+    if args.device:
+        values['device'] = args.device
+    return settings_from_parameters(values)
+
+
+def run(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.nodes.bag_replay import replay_bag
+    settings = settings_from_args(args)
+    result = replay_bag(args.bag, args.out, settings, train=not args.no_train, show_progress=True,
+                        skip_training=args.skip_training)
+    print(f'keyframes: {result.n_keyframes} in {result.keyframes_dir}')
+    if result.count is None:
+        return 0
+    print(f'fruit count: {result.count.count}')
+    print(f'point cloud: {result.pipeline.paths.cloud_ply}')
+    print(f'report:      {result.report_path}')
+    print(f'results:     {result.results_mcap}')
+    return 0

@@ -1,0 +1,268 @@
+"""Offline replay of a recorded rosbag2 (sqlite3 or MCAP): collect keyframes, train, count, write results.mcap.
+
+The bag is read with rosbags (no ROS graph, no DDS) and its messages go through the same
+:class:`~fruitnerfpp_ros.nodes.frame_assembler.FrameAssembler` as the live node's topics. Outputs in ``RUN_DIR``::
+
+    keyframes/          the collected transforms.json dataset (retrain with ``fruitnerfpp train``)
+    ...                 the training run (config.yaml, checkpoints/, cloud.ply, counts.json...)
+    fruit_report.json   the ~/fruit_report payload
+    results.mcap        the node's output topics (/fruit_counter/fruit_count, fruit_report, fruit_cloud,
+                        fruit_centers, fruit_markers, /diagnostics), readable by rosbags, mcap and Foxglove
+
+Run as ``fruitnerfpp replay BAG --out RUN_DIR`` or ``ros2 run fruitnerfpp_ros bag_replay BAG --out RUN_DIR``.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any, NamedTuple
+
+from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
+from fruitnerfpp_ros.core.progress import ProgressCallback
+from fruitnerfpp_ros.errors import BagError, ConfigError
+from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler, LogFunction
+from fruitnerfpp_ros.nodes.params import CounterSettings, keyframe_config, pipeline_configs
+from fruitnerfpp_ros.nodes.results import (DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, RESULTS_NODE_NAME, diagnostics_msg,
+                                           result_messages, write_report)
+
+__all__ = ['ROLE_TYPES', 'ReplayResult', 'collect_keyframes', 'replay_bag', 'write_results_mcap', 'main']
+
+#: Accepted message types per role (rosbags spelling).
+ROLE_TYPES = {
+    'image': ('sensor_msgs/msg/Image', 'sensor_msgs/msg/CompressedImage'),
+    'mask': ('sensor_msgs/msg/Image',),
+    'camera_info': ('sensor_msgs/msg/CameraInfo',),
+    'pose': ('geometry_msgs/msg/PoseStamped', 'geometry_msgs/msg/PoseWithCovarianceStamped'),
+    'odometry': ('nav_msgs/msg/Odometry',),
+    'tf': ('tf2_msgs/msg/TFMessage',),
+    'tf_static': ('tf2_msgs/msg/TFMessage',),
+}
+RESULTS_NAME = 'results.mcap'
+REPORT_NAME = 'fruit_report.json'
+
+
+class ReplayResult(NamedTuple):
+    """What a replay produced.
+
+    Attributes:
+        run_dir: the run directory.
+        keyframes_dir: the collected transforms.json dataset.
+        n_keyframes: keyframes collected.
+        count: the CountResult (None when training was skipped).
+        report_path: fruit_report.json (None when training was skipped).
+        results_mcap: results.mcap (None when training was skipped).
+        pipeline: the core's PipelineResult (None when training was skipped).
+        status: collection counters (messages per role, errors, sync).
+    """
+
+    run_dir: Path
+    keyframes_dir: Path
+    n_keyframes: int
+    count: Any
+    report_path: Path | None
+    results_mcap: Path | None
+    pipeline: Any
+    status: dict[str, Any]
+
+
+def _print_log(level: str, message: str) -> None:
+    print(f'[{level}] {message}', file=sys.stderr if level != 'info' else sys.stdout, flush=True)
+
+
+def _topics_table(reader: Any) -> str:
+    return ', '.join(f'{c.topic} [{c.msgtype}]' for c in sorted(reader.connections, key=lambda c: c.topic)) or 'none'
+
+
+def collect_keyframes(bag_path: str | Path, keyframes_dir: str | Path, settings: CounterSettings, *,
+                      log: LogFunction = _print_log, stop_event: threading.Event | None = None) -> FrameAssembler:
+    """Read every relevant message of the bag through a :class:`FrameAssembler` into ``keyframes_dir``.
+
+    Returns:
+        the assembler (its ``store`` holds the keyframes, ``status()`` the counters).
+
+    Raises:
+        BagError: the bag is missing, unreadable, corrupt or truncated, or lacks a required topic (the message
+            lists the topics it has).
+    """
+    from rosbags.highlevel import AnyReader
+
+    bag_path = Path(bag_path)
+    if not bag_path.exists():
+        raise BagError(f'{bag_path}: no such bag (a rosbag2 directory or an .mcap / .db3 file)')
+    store = KeyframeStore(keyframes_dir, keyframe_config(settings))
+    assembler = FrameAssembler(settings, store, log)
+    try:
+        reader = AnyReader([bag_path])
+        reader.open()
+    except Exception as err:  # noqa: BLE001 - rosbags raises many types for damaged files
+        raise BagError(f'{bag_path}: cannot open as a rosbag2 (sqlite3 or MCAP): {type(err).__name__}: {err}') \
+            from err
+    try:
+        by_topic = {c.topic: c for c in reader.connections}
+        roles: dict[str, str] = {}
+        used = list(assembler.required_roles())
+        if settings.pose_source in ('tf', 'odometry'):
+            used += [r for r in ('tf', 'tf_static') if r not in used]
+        for role in used:
+            topic = assembler.topic_of(role)
+            if topic not in by_topic:
+                if role in assembler.required_roles():
+                    raise BagError(f'{bag_path}: no topic {topic} ({role}) in the bag; topics in the bag: '
+                                   f'{_topics_table(reader)}. Set the *_topic parameters (--params) to match.')
+                continue
+            msgtype = by_topic[topic].msgtype
+            if msgtype not in ROLE_TYPES[role]:
+                raise BagError(f'{bag_path}: topic {topic} has type {msgtype}, expected '
+                               f'{" or ".join(ROLE_TYPES[role])} for {role}')
+            roles[topic] = role
+        unused = sorted(set(by_topic) - set(roles))
+        if unused:
+            log('info', f'{bag_path}: ignoring topics {", ".join(unused)}')
+        connections = [c for c in reader.connections if c.topic in roles]
+        try:
+            for connection, _, raw in reader.messages(connections=connections):
+                if stop_event is not None and stop_event.is_set():
+                    break
+                role = roles[connection.topic]
+                try:
+                    msg = reader.deserialize(raw, connection.msgtype)
+                except Exception as err:  # noqa: BLE001
+                    assembler.errors[role] += 1
+                    log('warn', f'{connection.topic}: undecodable message skipped ({type(err).__name__}: {err})')
+                    continue
+                assembler.on_message(role, msg)
+        except BagError:
+            raise
+        except Exception as err:  # noqa: BLE001
+            raise BagError(f'{bag_path}: the bag is corrupt or truncated ({type(err).__name__}: {err}); '
+                           f'{len(store)} keyframe(s) collected before the damage stay in {store.directory}') from err
+        assembler.flush()
+    finally:
+        try:
+            reader.close()
+        except Exception:  # noqa: BLE001
+            pass
+    return assembler
+
+
+def write_results_mcap(path: str | Path, messages: list[tuple[str, str, Any]], stamp_ns: int) -> Path:
+    """Write rclpy messages as a single MCAP file (rosbag2 flavour: CDR + ros2msg schemas; result topics are
+    offered transient-local, as the node publishes them).
+
+    Args:
+        path: the .mcap file to create (replaced atomically if it exists).
+        messages: (topic, rosbags type name, rclpy message) in write order.
+        stamp_ns: log time of every message.
+    """
+    from rclpy.serialization import serialize_message
+    from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    forever = QosTime(2147483647, 4294967295)
+    latched = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurability.TRANSIENT_LOCAL, forever, forever,
+                  QosLiveliness.AUTOMATIC, forever, False)
+
+    path = Path(path)
+    tmp_dir = path.with_name(f'.{path.name}.tmp{time.time_ns()}')
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    try:
+        with Writer(tmp_dir, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+            connections: dict[str, Any] = {}
+            for topic, msgtype, msg in messages:
+                if topic not in connections:
+                    qos = [] if topic == DIAGNOSTICS_TOPIC else [latched]  # `ros2 bag play` re-latches results
+                    connections[topic] = writer.add_connection(topic, msgtype, typestore=typestore,
+                                                               offered_qos_profiles=qos)
+                writer.write(connections[topic], int(stamp_ns), serialize_message(msg))
+        written = next(tmp_dir.glob('*.mcap'))
+        written.replace(path)
+    finally:
+        shutil.rmtree(tmp_dir, ignore_errors=True)
+    return path
+
+
+def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSettings = CounterSettings(), *,
+               preset: str | None = None, device: str | None = None, train: bool = True,
+               progress: ProgressCallback | None = None, log: LogFunction = _print_log,
+               stop_event: threading.Event | None = None, show_progress: bool = False,
+               train_config: Any = None, skip_training: bool = False) -> ReplayResult:
+    """Collect keyframes from a bag, then train, count and write the outputs into ``run_dir``.
+
+    Args:
+        bag_path: rosbag2 directory (sqlite3 or MCAP) or a single .mcap / .db3 file.
+        run_dir: output directory (created).
+        settings: topics, pose source, keyframe selection, preset (see ``config/fruit_counter.yaml``).
+        preset: overrides ``settings.preset``.
+        device: overrides ``settings.device``.
+        train: False stops after collecting keyframes.
+        train_config: a TrainConfig overriding the preset (tests, tools).
+        skip_training: reuse the model already trained in ``run_dir`` (re-export and recount only).
+
+    Raises:
+        BagError: unreadable bag, missing topics, or no keyframe collected.
+        ConfigError: ``run_dir`` already holds a training run (and ``skip_training`` is False).
+        FruitNerfError: training / export / clustering failures (from the core).
+    """
+    run_dir = Path(run_dir)
+    if train and not skip_training and (run_dir / 'checkpoints').exists():
+        raise ConfigError(f'{run_dir} already holds a training run; choose a new --out, or pass --skip-training '
+                          'to re-export and recount it')
+    run_dir.mkdir(parents=True, exist_ok=True)
+    keyframes_dir = run_dir / 'keyframes'
+    if keyframes_dir.exists():  # a replay collects afresh; earlier keyframes are kept aside, not mixed in
+        previous = keyframes_dir.with_name(f'keyframes_previous_{time.time_ns()}')
+        keyframes_dir.rename(previous)
+        log('info', f'{keyframes_dir} existed: moved to {previous}')
+    assembler = collect_keyframes(bag_path, keyframes_dir, settings, log=log, stop_event=stop_event)
+    status = assembler.status()
+    n_keyframes = len(assembler.store)
+    log('info', f'{bag_path}: {n_keyframes} keyframe(s) from {status["received"].get("image", 0)} image(s) '
+        f'in {keyframes_dir}')
+    if n_keyframes == 0:
+        raise BagError(f'{bag_path}: no keyframe could be made; received {status["received"]}, errors '
+                       f'{status["errors"]}, unmatched stamps {status["sync_unmatched"]}')
+    if not train:
+        return ReplayResult(run_dir, keyframes_dir, n_keyframes, None, None, None, None, status)
+    if n_keyframes < settings.min_keyframes:
+        raise BagError(f'{bag_path}: only {n_keyframes} keyframe(s), fewer than min_keyframes='
+                       f'{settings.min_keyframes}')
+    from fruitnerfpp_ros.core.pipeline import run_pipeline
+    configs = pipeline_configs(settings, preset=preset)
+    for warning in configs.warnings:
+        log('warn', warning)
+    result = run_pipeline(keyframes_dir, run_dir, train_config=train_config or configs.train,
+                          export_config=configs.export, cluster_config=configs.cluster,
+                          device=device or settings.device, progress=progress, stop_event=stop_event,
+                          show_progress=show_progress, skip_training=skip_training)
+    if result.stopped:
+        raise BagError(f'{bag_path}: replay stopped before the count; the keyframes stay in {keyframes_dir}')
+    stamp_ns = max(f.stamp_ns or 0 for f in assembler.store.frames)
+    run_id = f'{run_dir.resolve().name}'
+    extra = {'keyframes': n_keyframes, 'source': str(bag_path), 'preset': configs.preset}
+    messages = result_messages(result.count, result.cloud, settings.world_frame, stamp_ns, run_id, extra)
+    report_path = write_report(run_dir / REPORT_NAME, messages['fruit_report'].data)
+    diagnostics = diagnostics_msg(f'{RESULTS_NODE_NAME}: pipeline', RESULTS_NODE_NAME, 'ok',
+                                  f'done: {result.count.count} fruits', {'state': 'done', 'keyframes': n_keyframes,
+                                                                         'fruits': result.count.count}, stamp_ns)
+    topics = [(f'/{RESULTS_NODE_NAME}/{t.name}', t.msg_type, messages[t.name]) for t in OUTPUT_TOPICS]
+    topics.append((DIAGNOSTICS_TOPIC, 'diagnostic_msgs/msg/DiagnosticArray', diagnostics))
+    results_mcap = write_results_mcap(run_dir / RESULTS_NAME, topics, stamp_ns)
+    return ReplayResult(run_dir, keyframes_dir, n_keyframes, result.count, report_path, results_mcap, result, status)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``ros2 run fruitnerfpp_ros bag_replay BAG --out RUN_DIR [...]`` (same options as ``fruitnerfpp replay``)."""
+    from fruitnerfpp_ros.cli.main import main as cli_main
+    args = list(sys.argv[1:] if argv is None else argv)
+    if '--ros-args' in args:  # ros2 run / launch append ROS arguments we do not use
+        args = args[:args.index('--ros-args')]
+    return cli_main(['replay', *args])
+
+
+if __name__ == '__main__':
+    sys.exit(main())

@@ -1,0 +1,402 @@
+"""Conversions between ROS messages and the core's arrays and records (pure functions, no ROS graph).
+
+Reading functions (``*_from_msg``) are duck-typed: they accept rclpy messages and the messages rosbags decodes from
+a bag alike (same field names), so live topics and bag replay share one code path. Writing functions
+(``*_msg_from_*``) build rclpy messages.
+
+Conventions: stamps in nanoseconds (``stamp_ns``); ``T_a_b`` maps frame ``b`` into frame ``a``; CameraInfo's
+principal point has the centre of the top-left pixel at (0, 0) (OpenCV's convention too), transforms.json's
+the top-left corner (``cx_transforms = cx_ros + 0.5``).
+"""
+
+from __future__ import annotations
+
+import json
+from typing import Any, NamedTuple, Sequence
+
+import cv2
+import numpy as np
+
+from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics
+from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+from fruitnerfpp_ros.core.geometry import (principal_point_transforms_from_ros, quaternion_from_transform,
+                                           transform_from_quaternion)
+from fruitnerfpp_ros.errors import ConversionError
+
+__all__ = [
+    'REPORT_SCHEMA', 'REPORT_VERSION', 'CLOUD_DTYPE', 'CameraModel',
+    'stamp_ns_from_header', 'time_msg_from_ns',
+    'image_from_msg', 'mask_from_msg', 'camera_model_from_camera_info', 'intrinsics_from_camera_info',
+    'undistort_image', 'undistort_mask', 'transform_from_pose_msg', 'transform_from_transform_msg',
+    'pose_msg_from_transform', 'cloud_msg_from_points', 'points_from_cloud_msg', 'pose_array_from_centers',
+    'markers_from_fruits', 'report_from_count', 'report_json', 'image_msg_from_array',
+    'camera_info_msg_from_intrinsics',
+]
+
+#: Identifies the JSON published on ``~/fruit_report`` and written to ``fruit_report.json``.
+REPORT_SCHEMA = 'fruitnerfpp_ros/fruit_report'
+#: Bumped whenever a key of the report changes meaning or disappears (adding keys keeps the version).
+REPORT_VERSION = 1
+
+_IMAGE_ENCODINGS = {  # encoding -> (channels, dtype)
+    'rgb8': (3, np.uint8), 'bgr8': (3, np.uint8), 'rgba8': (4, np.uint8), 'bgra8': (4, np.uint8),
+    'mono8': (1, np.uint8), '8UC1': (1, np.uint8), '8UC3': (3, np.uint8),
+}
+_MASK_ENCODINGS = {
+    'mono16': np.uint16, '16UC1': np.uint16, '32SC1': np.int32, '32UC1': np.uint32, 'mono8': np.uint8,
+    '8UC1': np.uint8,
+}
+_DISTORTION_MODELS = ('plumb_bob', 'rational_polynomial', 'equidistant')
+
+
+class CameraModel(NamedTuple):
+    """A camera as CameraInfo describes it.
+
+    Attributes:
+        intrinsics: pinhole intrinsics of the *undistorted* image, transforms.json convention.
+        K: 3x3 intrinsic matrix, ROS/OpenCV convention (centre of the top-left pixel at 0, 0).
+        D: distortion coefficients as CameraInfo lists them.
+        distortion_model: ``plumb_bob``, ``rational_polynomial``, ``equidistant`` or '' (none).
+        frame_id: the optical frame of the camera.
+    """
+
+    intrinsics: CameraIntrinsics
+    K: np.ndarray
+    D: np.ndarray
+    distortion_model: str
+    frame_id: str
+
+    @property
+    def is_distorted(self) -> bool:
+        return bool(self.D.size and np.any(self.D != 0.0))
+
+
+# ----------------------------------------------------------------------------------------------- stamps
+
+def stamp_ns_from_header(header: Any) -> int:
+    """Nanoseconds of a ``std_msgs/Header`` (or of a ``builtin_interfaces/Time`` directly)."""
+    stamp = getattr(header, 'stamp', header)
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def time_msg_from_ns(stamp_ns: int) -> Any:
+    """``builtin_interfaces/Time`` of a stamp in nanoseconds."""
+    from builtin_interfaces.msg import Time
+    return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
+
+
+def _header(frame_id: str, stamp_ns: int) -> Any:
+    from std_msgs.msg import Header
+    return Header(stamp=time_msg_from_ns(stamp_ns), frame_id=frame_id)
+
+
+# ----------------------------------------------------------------------------------------------- images
+
+def _bytes_of(data: Any) -> np.ndarray:
+    if isinstance(data, np.ndarray):
+        return data.reshape(-1).view(np.uint8)
+    return np.frombuffer(data, dtype=np.uint8)
+
+
+def _pixels(msg: Any, channels: int, dtype: type, topic: str) -> np.ndarray:
+    height, width, step = int(msg.height), int(msg.width), int(msg.step)
+    itemsize = np.dtype(dtype).itemsize
+    row_bytes = width * channels * itemsize
+    if height <= 0 or width <= 0:
+        raise ConversionError(f'{topic}: empty image ({width}x{height})')
+    if step < row_bytes:
+        raise ConversionError(f'{topic}: step {step} is smaller than width {width} x {channels} x {itemsize} bytes')
+    raw = _bytes_of(msg.data)
+    if raw.size < step * height:
+        raise ConversionError(f'{topic}: image data has {raw.size} bytes, expected step {step} x height {height}')
+    rows = raw[:step * height].reshape(height, step)[:, :row_bytes]
+    order = '>' if getattr(msg, 'is_bigendian', 0) else '<'
+    pixels = np.ascontiguousarray(rows).view(np.dtype(dtype).newbyteorder(order) if itemsize > 1 else dtype)
+    return pixels.reshape(height, width, channels).astype(dtype, copy=False)
+
+
+def image_from_msg(msg: Any, *, topic: str = 'image') -> np.ndarray:
+    """[H, W, 3] uint8 RGB from ``sensor_msgs/Image`` (rgb8, bgr8, rgba8, bgra8, mono8) or ``CompressedImage``.
+
+    Raises:
+        ConversionError: unknown encoding, inconsistent size or undecodable compressed data.
+    """
+    if hasattr(msg, 'format') and not hasattr(msg, 'encoding'):  # sensor_msgs/CompressedImage
+        decoded = cv2.imdecode(_bytes_of(msg.data), cv2.IMREAD_COLOR)
+        if decoded is None:
+            raise ConversionError(f'{topic}: cannot decode CompressedImage (format {msg.format!r})')
+        return cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
+    encoding = str(msg.encoding)
+    if encoding not in _IMAGE_ENCODINGS:
+        raise ConversionError(f'{topic}: unsupported image encoding {encoding!r}; '
+                              f'expected one of {", ".join(_IMAGE_ENCODINGS)}')
+    channels, dtype = _IMAGE_ENCODINGS[encoding]
+    pixels = _pixels(msg, channels, dtype, topic)
+    if channels == 1:
+        return np.repeat(pixels, 3, axis=2)
+    if encoding.startswith('bgr'):
+        pixels = pixels[..., 2::-1]
+    return np.ascontiguousarray(pixels[..., :3])
+
+
+def mask_from_msg(msg: Any, *, topic: str = 'mask', expected_shape: tuple[int, int] | None = None) -> np.ndarray:
+    """[H, W] uint16 instance ids (0 = background) from a mono16 / 16UC1 / 32SC1 / mono8 ``sensor_msgs/Image``.
+
+    Negative ids (32SC1) count as background.
+
+    Raises:
+        ConversionError: unknown encoding, ids above 65535, or a size other than ``expected_shape`` (H, W).
+    """
+    encoding = str(msg.encoding)
+    if encoding not in _MASK_ENCODINGS:
+        raise ConversionError(f'{topic}: unsupported mask encoding {encoding!r}; '
+                              f'expected one of {", ".join(_MASK_ENCODINGS)}')
+    ids = _pixels(msg, 1, _MASK_ENCODINGS[encoding], topic)[..., 0]
+    if expected_shape is not None and ids.shape != tuple(expected_shape):
+        raise ConversionError(f'{topic}: mask is {ids.shape[1]}x{ids.shape[0]} but the image is '
+                              f'{expected_shape[1]}x{expected_shape[0]}')
+    if ids.dtype.kind == 'i':
+        ids = np.maximum(ids, 0)
+    if ids.size and int(ids.max()) > 65535:
+        raise ConversionError(f'{topic}: instance id {int(ids.max())} does not fit in 16 bits')
+    return ids.astype(np.uint16)
+
+
+def image_msg_from_array(pixels: np.ndarray, encoding: str, frame_id: str, stamp_ns: int) -> Any:
+    """``sensor_msgs/Image`` from [H, W, 3] uint8 (``rgb8``) or [H, W] uint16 (``mono16``) pixels."""
+    from sensor_msgs.msg import Image
+    pixels = np.ascontiguousarray(pixels)
+    height, width = pixels.shape[:2]
+    return Image(header=_header(frame_id, stamp_ns), height=height, width=width, encoding=encoding,
+                 is_bigendian=0, step=int(pixels.strides[0]), data=pixels.tobytes())
+
+
+# ----------------------------------------------------------------------------------------------- cameras
+
+def camera_model_from_camera_info(msg: Any, *, topic: str = 'camera_info') -> CameraModel:
+    """The camera of a ``sensor_msgs/CameraInfo``.
+
+    Raises:
+        ConversionError: uncalibrated (zero focal length) or a distortion model that cannot be undone.
+    """
+    K = np.asarray(msg.k, dtype=np.float64).reshape(3, 3)
+    D = np.asarray(msg.d, dtype=np.float64).reshape(-1)
+    width, height = int(msg.width), int(msg.height)
+    if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0 or width <= 0 or height <= 0:
+        raise ConversionError(f'{topic}: camera is not calibrated (K={K.ravel().tolist()}, {width}x{height})')
+    model = str(msg.distortion_model)
+    if D.size and np.any(D != 0.0) and model not in _DISTORTION_MODELS:
+        raise ConversionError(f'{topic}: distortion model {model!r} is not supported; '
+                              f'expected one of {", ".join(_DISTORTION_MODELS)}')
+    if not np.all(np.isfinite(D)):
+        raise ConversionError(f'{topic}: distortion coefficients are not finite: {D.tolist()}')
+    cx, cy = principal_point_transforms_from_ros(float(K[0, 2]), float(K[1, 2]))
+    intrinsics = CameraIntrinsics(float(K[0, 0]), float(K[1, 1]), cx, cy, width, height)
+    return CameraModel(intrinsics, K, D, model, str(msg.header.frame_id))
+
+
+def intrinsics_from_camera_info(msg: Any, *, topic: str = 'camera_info') -> CameraIntrinsics:
+    """transforms.json intrinsics of a CameraInfo (``cx = cx_ros + 0.5``), for the undistorted image."""
+    return camera_model_from_camera_info(msg, topic=topic).intrinsics
+
+
+def camera_info_msg_from_intrinsics(intrinsics: CameraIntrinsics, frame_id: str, stamp_ns: int) -> Any:
+    """``sensor_msgs/CameraInfo`` (no distortion) of transforms.json intrinsics (``cx_ros = cx - 0.5``)."""
+    from sensor_msgs.msg import CameraInfo
+    cx, cy = intrinsics.cx - 0.5, intrinsics.cy - 0.5
+    fx, fy = intrinsics.fl_x, intrinsics.fl_y
+    return CameraInfo(header=_header(frame_id, stamp_ns), width=int(intrinsics.w), height=int(intrinsics.h),
+                      distortion_model='plumb_bob', d=[0.0] * 5, k=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
+                      r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
+                      p=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
+
+
+_MAP_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+
+
+def _undistort_maps(camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    key = (camera.K.tobytes(), camera.D.tobytes(), camera.distortion_model, camera.intrinsics.w,
+           camera.intrinsics.h)
+    if key not in _MAP_CACHE:
+        size = (int(camera.intrinsics.w), int(camera.intrinsics.h))
+        if camera.distortion_model == 'equidistant':
+            D = np.zeros(4)
+            D[:min(4, camera.D.size)] = camera.D[:4]
+            maps = cv2.fisheye.initUndistortRectifyMap(camera.K, D, np.eye(3), camera.K, size, cv2.CV_32FC1)
+        else:
+            maps = cv2.initUndistortRectifyMap(camera.K, camera.D, None, camera.K, size, cv2.CV_32FC1)
+        if len(_MAP_CACHE) > 8:
+            _MAP_CACHE.clear()
+        _MAP_CACHE[key] = (maps[0], maps[1])
+    return _MAP_CACHE[key]
+
+
+def undistort_image(image: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """Undo the lens distortion of an image (bilinear); the result has the pinhole camera ``camera.K``."""
+    if not camera.is_distorted:
+        return image
+    map_x, map_y = _undistort_maps(camera)
+    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+
+
+def undistort_mask(mask: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """Undo the lens distortion of an instance mask (nearest neighbour, so ids never blend)."""
+    if not camera.is_distorted:
+        return mask
+    map_x, map_y = _undistort_maps(camera)
+    return cv2.remap(mask, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+
+
+# ----------------------------------------------------------------------------------------------- poses
+
+def _checked_transform(translation: np.ndarray, quaternion: np.ndarray, what: str) -> np.ndarray:
+    if not (np.all(np.isfinite(translation)) and np.all(np.isfinite(quaternion))):
+        raise ConversionError(f'{what}: pose is not finite (t={translation.tolist()}, q={quaternion.tolist()})')
+    if np.linalg.norm(quaternion) < 1e-6:
+        raise ConversionError(f'{what}: zero quaternion')
+    return transform_from_quaternion(translation, quaternion)
+
+
+def transform_from_pose_msg(pose: Any, *, topic: str = 'pose') -> np.ndarray:
+    """4x4 transform of a ``geometry_msgs/Pose`` (also accepts PoseStamped / PoseWithCovariance[Stamped]).
+
+    Raises:
+        ConversionError: NaN/inf values or a zero quaternion.
+    """
+    while not hasattr(pose, 'position'):
+        pose = pose.pose
+    p, q = pose.position, pose.orientation
+    return _checked_transform(np.array([p.x, p.y, p.z], float), np.array([q.x, q.y, q.z, q.w], float), topic)
+
+
+def transform_from_transform_msg(transform: Any, *, topic: str = 'tf') -> np.ndarray:
+    """4x4 transform of a ``geometry_msgs/Transform`` (or TransformStamped)."""
+    transform = getattr(transform, 'transform', transform)
+    t, q = transform.translation, transform.rotation
+    return _checked_transform(np.array([t.x, t.y, t.z], float), np.array([q.x, q.y, q.z, q.w], float), topic)
+
+
+def pose_msg_from_transform(T: np.ndarray) -> Any:
+    """``geometry_msgs/Pose`` of a 4x4 transform."""
+    from geometry_msgs.msg import Point, Pose, Quaternion
+    t, q = quaternion_from_transform(T)
+    return Pose(position=Point(x=float(t[0]), y=float(t[1]), z=float(t[2])),
+                orientation=Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
+
+
+# ----------------------------------------------------------------------------------------------- results
+
+#: Point layout of ``~/fruit_cloud``: x, y, z float32; rgb packed 0x00RRGGBB (uint32 read as FLOAT32, as RViz and
+#: PCL expect); instance_id uint32 (cluster id, 0 = noise); semantic float32 fruit probability.
+CLOUD_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<u4'), ('instance_id', '<u4'),
+                        ('semantic', '<f4')])
+
+
+def cloud_msg_from_points(cloud: FruitPointCloud, labels: np.ndarray | None, frame_id: str, stamp_ns: int) -> Any:
+    """``sensor_msgs/PointCloud2`` of a fruit cloud with per-point cluster ids (fields: see ``CLOUD_DTYPE``)."""
+    from sensor_msgs.msg import PointCloud2, PointField
+    n = len(cloud)
+    points = np.zeros(n, dtype=CLOUD_DTYPE)
+    xyz = np.asarray(cloud.xyz, dtype=np.float32).reshape(n, 3)
+    points['x'], points['y'], points['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    rgb = np.asarray(cloud.rgb, dtype=np.uint32).reshape(n, 3)
+    points['rgb'] = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
+    points['instance_id'] = 0 if labels is None else np.asarray(labels).astype(np.uint32)
+    points['semantic'] = np.asarray(cloud.semantic, dtype=np.float32)
+    types = {'x': PointField.FLOAT32, 'y': PointField.FLOAT32, 'z': PointField.FLOAT32, 'rgb': PointField.FLOAT32,
+             'instance_id': PointField.UINT32, 'semantic': PointField.FLOAT32}
+    fields = [PointField(name=name, offset=CLOUD_DTYPE.fields[name][1], datatype=types[name], count=1)
+              for name in CLOUD_DTYPE.names]
+    return PointCloud2(header=_header(frame_id, stamp_ns), height=1, width=n, fields=fields, is_bigendian=False,
+                       point_step=CLOUD_DTYPE.itemsize, row_step=CLOUD_DTYPE.itemsize * n, is_dense=True,
+                       data=points.tobytes())
+
+
+_POINT_FIELD_DTYPES = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4', 7: 'f4', 8: 'f8'}
+
+
+def points_from_cloud_msg(msg: Any) -> np.ndarray:
+    """Structured numpy array (one record per point, one field per PointField) of a ``PointCloud2``.
+
+    Raises:
+        ConversionError: a field datatype outside the PointField constants, or too little data.
+    """
+    endian = '>' if msg.is_bigendian else '<'
+    names, formats, offsets = [], [], []
+    for f in msg.fields:
+        if int(f.datatype) not in _POINT_FIELD_DTYPES:
+            raise ConversionError(f'PointCloud2 field {f.name!r}: unknown datatype {f.datatype}')
+        names.append(str(f.name))
+        formats.append(endian + _POINT_FIELD_DTYPES[int(f.datatype)])
+        offsets.append(int(f.offset))
+    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': int(msg.point_step)})
+    n = int(msg.width) * int(msg.height)
+    raw = _bytes_of(msg.data)
+    if raw.size < n * int(msg.point_step):
+        raise ConversionError(f'PointCloud2: {raw.size} bytes for {n} points of {msg.point_step} bytes')
+    return np.frombuffer(raw[:n * int(msg.point_step)].tobytes(), dtype=dtype)
+
+
+def pose_array_from_centers(centers: np.ndarray, frame_id: str, stamp_ns: int) -> Any:
+    """``geometry_msgs/PoseArray`` with one identity-oriented pose per fruit centre ([N, 3], metres)."""
+    from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
+    poses = [Pose(position=Point(x=float(c[0]), y=float(c[1]), z=float(c[2])), orientation=Quaternion(w=1.0))
+             for c in np.asarray(centers, dtype=float).reshape(-1, 3)]
+    return PoseArray(header=_header(frame_id, stamp_ns), poses=poses)
+
+
+def markers_from_fruits(fruits: Sequence[Fruit], frame_id: str, stamp_ns: int) -> Any:
+    """``visualization_msgs/MarkerArray``: DELETEALL, then per fruit a sphere (ns ``fruits``, id = fruit id)
+    sized by its diameter and a text label (ns ``fruit_labels``) above it."""
+    from std_msgs.msg import ColorRGBA
+    from visualization_msgs.msg import Marker, MarkerArray
+    header = _header(frame_id, stamp_ns)
+    markers = [Marker(header=header, action=Marker.DELETEALL)]
+    for fruit in fruits:
+        pose = pose_msg_from_transform(np.eye(4))
+        pose.position.x, pose.position.y, pose.position.z = (float(v) for v in fruit.center)
+        diameter = float(max(fruit.diameter_m, 1e-3))
+        sphere = Marker(header=header, ns='fruits', id=int(fruit.id), type=Marker.SPHERE, action=Marker.ADD,
+                        pose=pose, color=ColorRGBA(r=1.0, g=0.3, b=0.1, a=0.8))
+        sphere.scale.x = sphere.scale.y = sphere.scale.z = diameter
+        label_pose = pose_msg_from_transform(np.eye(4))
+        label_pose.position.x, label_pose.position.y = pose.position.x, pose.position.y
+        label_pose.position.z = pose.position.z + diameter
+        label = Marker(header=header, ns='fruit_labels', id=int(fruit.id), type=Marker.TEXT_VIEW_FACING,
+                       action=Marker.ADD, pose=label_pose, text=str(int(fruit.id)),
+                       color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0))
+        label.scale.z = max(diameter * 0.6, 0.02)
+        markers += [sphere, label]
+    return MarkerArray(markers=markers)
+
+
+def report_from_count(count: CountResult, frame_id: str, stamp_ns: int, run_id: str,
+                      extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """The fruit report (schema ``fruitnerfpp_ros/fruit_report``, version 1).
+
+    Keys: ``schema``, ``version``, ``run_id``, ``stamp`` {``sec``, ``nanosec``}, ``stamp_ns``, ``frame_id``
+    (world frame of every coordinate), ``total`` (number of fruits), ``fruits`` (list of {``id`` (as in the
+    cloud's instance_id and the markers), ``center`` [x, y, z] m, ``diameter`` m, ``extent`` [3] m,
+    ``n_points``}), plus ``extra`` (e.g. ``keyframes``, ``stats``).
+    """
+    report = {'schema': REPORT_SCHEMA, 'version': REPORT_VERSION, 'run_id': run_id,
+              'stamp': {'sec': int(stamp_ns // 1_000_000_000), 'nanosec': int(stamp_ns % 1_000_000_000)},
+              'stamp_ns': int(stamp_ns), 'frame_id': frame_id, 'total': int(count.count),
+              'fruits': [f.to_json() for f in count.fruits]}
+    report.update(extra or {})
+    return report
+
+
+def report_json(count: CountResult, frame_id: str, stamp_ns: int, run_id: str,
+                extra: dict[str, Any] | None = None) -> str:
+    """:func:`report_from_count` as a JSON string (what ``~/fruit_report`` carries)."""
+    return json.dumps(report_from_count(count, frame_id, stamp_ns, run_id, extra), default=_json_default)
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)

@@ -1,0 +1,247 @@
+"""Turns image / mask / pose / camera_info / TF messages into keyframes: the one path of live node and bag replay.
+
+The live node's worker and the bag reader both call :meth:`FrameAssembler.on_message` with a role
+(``image``, ``mask``, ``pose``, ``odometry``, ``camera_info``, ``tf``, ``tf_static``) and a message (rclpy or
+rosbags-decoded). Image, mask and pose are matched by stamp (:class:`ApproximateTimeSynchronizer`); a matched
+frame waits (up to ``pending_timeout_s`` of stamp time) for camera_info and TF, is converted and undistorted,
+and offered to the :class:`KeyframeStore`, which writes it to disk when kept.
+
+Bad input never raises out of :meth:`on_message`: it is logged (throttled per kind) and counted in
+:attr:`FrameAssembler.errors`; frames already collected stay on disk.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from collections import Counter
+from typing import Any, Callable
+
+import numpy as np
+
+from fruitnerfpp_ros.core.data.keyframe_store import Keyframe, KeyframeDecision, KeyframeStore
+from fruitnerfpp_ros.core.geometry import transform_from_quaternion
+from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
+from fruitnerfpp_ros.nodes.conversions import (CameraModel, camera_model_from_camera_info, image_from_msg,
+                                               stamp_ns_from_header, transform_from_pose_msg, undistort_image,
+                                               undistort_mask)
+from fruitnerfpp_ros.nodes.mask_source import MaskSource, TopicMaskSource
+from fruitnerfpp_ros.nodes.params import CounterSettings
+from fruitnerfpp_ros.nodes.tf_buffer import TfBuffer, TfFutureError, TfLookupError
+from fruitnerfpp_ros.nodes.time_sync import ApproximateTimeSynchronizer, SyncedSet
+
+__all__ = ['ROLES', 'LogFunction', 'FrameAssembler', 'ThrottledLog']
+
+#: Message roles the assembler understands.
+ROLES = ('image', 'mask', 'pose', 'odometry', 'camera_info', 'tf', 'tf_static')
+
+#: ``log(level, message)`` with level ``info`` / ``warn`` / ``error``.
+LogFunction = Callable[[str, str], None]
+
+
+class ThrottledLog:
+    """Logs the first message of each kind at once, then at most one per ``period_s`` with a suppressed count."""
+
+    def __init__(self, log: LogFunction, period_s: float = 5.0) -> None:
+        self._log = log
+        self.period_s = period_s
+        self._last: dict[str, float] = {}
+        self._suppressed: Counter[str] = Counter()
+
+    def __call__(self, level: str, kind: str, message: str) -> None:
+        now = time.monotonic()
+        if now - self._last.get(kind, -1e18) < self.period_s:
+            self._suppressed[kind] += 1
+            return
+        suppressed = self._suppressed.pop(kind, 0)
+        self._last[kind] = now
+        self._log(level, message + (f' ({suppressed} similar messages suppressed)' if suppressed else ''))
+
+
+class FrameAssembler:
+    """Synchronises inputs, builds :class:`Keyframe` records and offers them to ``store``.
+
+    Args:
+        settings: topics, pose source, frames, sync tolerance.
+        store: where keyframes go.
+        log: ``log(level, message)``; the assembler throttles repeated warnings itself.
+        mask_source: instance masks (default: the ``mask_topic``).
+    """
+
+    def __init__(self, settings: CounterSettings, store: KeyframeStore, log: LogFunction,
+                 mask_source: MaskSource | None = None) -> None:
+        self.settings = settings
+        self.store = store
+        self.mask_source = mask_source or TopicMaskSource(settings.mask_topic)
+        self._log = log
+        self._throttled = ThrottledLog(log)
+        self.tf = TfBuffer()
+        names = ['image']
+        if self.mask_source.topic is not None:
+            names.append('mask')
+        if settings.pose_source in ('pose', 'odometry'):
+            names.append(settings.pose_source)
+        self._sync_index = {name: i for i, name in enumerate(names)}
+        self.sync: ApproximateTimeSynchronizer[Any] = ApproximateTimeSynchronizer(
+            names, int(settings.sync_slop_s * 1e9), settings.queue_size)
+        extrinsic = settings.extrinsic_values()
+        self._T_base_camera = None if extrinsic is None else transform_from_quaternion(extrinsic[:3], extrinsic[3:])
+        self.camera: CameraModel | None = None
+        self._pending: list[SyncedSet] = []
+        self._newest_stamp_ns = 0
+        self.received: Counter[str] = Counter()
+        self.errors: Counter[str] = Counter()
+        self.decisions: Counter[str] = Counter()
+        self.dropped_pending = 0
+
+    # ------------------------------------------------------------------ input
+    def topic_of(self, role: str) -> str:
+        """The topic a role is read from (for messages)."""
+        s = self.settings
+        return {'image': s.image_topic, 'mask': s.mask_topic, 'pose': s.pose_topic, 'odometry': s.odometry_topic,
+                'camera_info': s.camera_info_topic, 'tf': '/tf', 'tf_static': '/tf_static'}[role]
+
+    def required_roles(self) -> list[str]:
+        """Roles without which no keyframe can be made (for checking a bag's topics)."""
+        roles = ['image', 'camera_info'] + (['mask'] if self.mask_source.topic is not None else [])
+        if self.settings.pose_source in ('pose', 'odometry'):
+            roles.append(self.settings.pose_source)
+        if self.settings.pose_source == 'tf':
+            roles.append('tf')
+        return roles
+
+    def on_message(self, role: str, msg: Any) -> list[KeyframeDecision]:
+        """Feed one message; returns what the store decided for every frame this message completed."""
+        self.received[role] += 1
+        try:
+            return self._dispatch(role, msg)
+        except FruitNerfError as err:
+            self.errors[role] += 1
+            self._throttled('warn', _kind(f'bad:{role}:{err}'), f'{self.topic_of(role)}: {err}; message dropped')
+        except Exception as err:  # noqa: BLE001 - a malformed message must never stop the node
+            self.errors[role] += 1
+            self._throttled('warn', f'bad:{role}', f'{self.topic_of(role)}: cannot read message '
+                            f'({type(err).__name__}: {err}); message dropped')
+        return []
+
+    def _dispatch(self, role: str, msg: Any) -> list[KeyframeDecision]:
+        if role in ('tf', 'tf_static'):
+            self.tf.add_tf_message(msg, static=role == 'tf_static')
+            return self._drain()
+        if role == 'camera_info':
+            camera = camera_model_from_camera_info(msg, topic=self.settings.camera_info_topic)
+            if self.camera is None:
+                self._log('info', f'{self.settings.camera_info_topic}: {camera.intrinsics.w}x{camera.intrinsics.h} '
+                          f'camera, distortion {camera.distortion_model or "none"}')
+            self.camera = camera
+            return self._drain()
+        if role not in self._sync_index:
+            return []
+        stamp_ns = stamp_ns_from_header(msg.header)
+        if role in ('pose', 'odometry'):
+            transform_from_pose_msg(msg.pose, topic=self.topic_of(role))  # reject NaN poses before matching
+        self._newest_stamp_ns = max(self._newest_stamp_ns, stamp_ns)
+        before = sum(self.sync.unmatched.values())
+        self._pending.extend(self.sync.add(self._sync_index[role], stamp_ns, msg))
+        if sum(self.sync.unmatched.values()) > before:
+            self._throttled('warn', 'unsynced', f'{", ".join(self.topic_of(r) for r in self._sync_index)}: '
+                            f'stamps do not match within sync_slop_s={self.settings.sync_slop_s} s; '
+                            f'unmatched so far {dict(self.sync.unmatched)}')
+        return self._drain()
+
+    # ------------------------------------------------------------------ frames
+    def _drain(self, *, final: bool = False) -> list[KeyframeDecision]:
+        decisions, waiting = [], []
+        for synced in self._pending:
+            try:
+                decisions.append(self._complete(synced))
+            except (TfFutureError, _NoCameraInfo) as err:
+                too_old = self._newest_stamp_ns - synced.stamp_ns > self.settings.pending_timeout_s * 1e9
+                if final or too_old:
+                    self.dropped_pending += 1
+                    self.errors['waiting'] += 1
+                    self._throttled('warn', f'drop:{type(err).__name__}', f'frame at {synced.stamp_ns} ns dropped: '
+                                    f'{err}')
+                else:
+                    waiting.append(synced)
+            except FruitNerfError as err:
+                self.errors['frame'] += 1
+                self._throttled('warn', _kind(f'frame:{err}'), f'frame at {synced.stamp_ns} ns dropped: {err}')
+        self._pending = waiting
+        for decision in decisions:
+            self.decisions[decision.value] += 1
+        return decisions
+
+    def flush(self) -> list[KeyframeDecision]:
+        """Process what can be processed and drop every frame still waiting (end of a bag)."""
+        return self._drain(final=True)
+
+    def reset(self) -> None:
+        """Forget queued and waiting frames (the TF buffer and camera model are kept)."""
+        self.sync.reset()
+        self._pending = []
+
+    def _complete(self, synced: SyncedSet) -> KeyframeDecision:
+        items = dict(zip(self._sync_index, synced.items))
+        image_msg = items['image']
+        if self.camera is None:
+            raise _NoCameraInfo(f'no CameraInfo received on {self.settings.camera_info_topic} yet')
+        T_world_optical = self._pose_for(synced.stamp_ns, items)
+        rgb = image_from_msg(image_msg, topic=self.settings.image_topic)
+        camera = self.camera
+        if rgb.shape[:2] != (camera.intrinsics.h, camera.intrinsics.w):
+            raise ConversionError(f'{self.settings.image_topic}: image is {rgb.shape[1]}x{rgb.shape[0]} but '
+                                  f'{self.settings.camera_info_topic} says {camera.intrinsics.w}x{camera.intrinsics.h}')
+        instances = self.mask_source.instances_for(rgb, items.get('mask'))
+        keyframe = Keyframe(synced.stamp_ns, undistort_image(rgb, camera), undistort_mask(instances, camera),
+                            T_world_optical, camera.intrinsics)
+        decision = self.store.offer(keyframe)
+        if decision is KeyframeDecision.ACCEPTED:
+            n = len(self.store)
+            if n == 1 or n % 10 == 0:
+                self._log('info', f'{n} keyframe(s) collected in {self.store.directory}')
+        elif decision is KeyframeDecision.FULL:
+            self._throttled('warn', 'full', f'max_keyframes={self.store.config.max_keyframes} reached; '
+                            'further frames are ignored (call ~/train or ~/reset)')
+        return decision
+
+    def _camera_frame(self, image_msg: Any) -> str:
+        return self.settings.camera_frame or str(image_msg.header.frame_id)
+
+    def _pose_for(self, stamp_ns: int, items: dict[str, Any]) -> np.ndarray:
+        s = self.settings
+        if s.pose_source == 'pose':
+            return transform_from_pose_msg(items['pose'].pose, topic=s.pose_topic)
+        if s.pose_source == 'odometry':
+            T_world_base = transform_from_pose_msg(items['odometry'].pose, topic=s.odometry_topic)
+            T_base_camera = self._T_base_camera
+            if T_base_camera is None:
+                try:
+                    T_base_camera = self.tf.lookup(s.base_frame, self._camera_frame(items['image']), stamp_ns)
+                except TfLookupError as err:
+                    raise TfFutureError(f'camera extrinsic: {err} (set camera_extrinsic or publish /tf_static)') \
+                        from err
+            return T_world_base @ T_base_camera
+        try:
+            return self.tf.lookup(s.world_frame, self._camera_frame(items['image']), stamp_ns)
+        except TfFutureError:
+            raise
+        except TfLookupError as err:
+            raise TfFutureError(str(err)) from err
+
+    # ------------------------------------------------------------------ status
+    def status(self) -> dict[str, Any]:
+        """Counters for diagnostics and reports."""
+        return {'keyframes': len(self.store), 'received': dict(self.received), 'errors': dict(self.errors),
+                'decisions': dict(self.decisions), 'rejected': {k.value: v for k, v in self.store.rejected.items()},
+                'sync_matched': self.sync.matched, 'sync_unmatched': dict(self.sync.unmatched),
+                'waiting': len(self._pending), 'dropped_waiting': self.dropped_pending}
+
+
+def _kind(message: str) -> str:
+    """Throttling key of a message: the same text up to its numbers is the same kind."""
+    return re.sub(r'[-+.0-9eE]*[0-9]+', '#', message)[:200]
+
+
+class _NoCameraInfo(ConversionError):
+    """No CameraInfo has arrived yet (the frame waits)."""

@@ -1,0 +1,346 @@
+"""The ``fruit_counter`` node: collects keyframes from live topics, trains in the background, publishes the count.
+
+Threading (nvblox-style): subscription callbacks only append to bounded per-input deques (oldest dropped and
+counted); a tick timer drains them through the shared :class:`FrameAssembler` (keyframes written to disk as they
+arrive); training runs :func:`fruitnerfpp_ros.core.pipeline.run_pipeline` in a background thread with a stop event,
+so the executor keeps spinning, reporting and collecting (keyframes that arrive during training are kept for the
+next ``~/train``).
+
+Interface (see docs/ros_interface.md): inputs ``image_topic`` / ``camera_info_topic`` / ``mask_topic`` / pose
+(``pose_topic``, ``odometry_topic`` or /tf + /tf_static); services ``~/train``, ``~/reset``, ``~/save``
+(std_srvs/Trigger); latched outputs ``~/fruit_count``, ``~/fruit_report``, ``~/fruit_cloud``, ``~/fruit_centers``,
+``~/fruit_markers``; ``/diagnostics``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import os
+import sys
+import threading
+import time
+from collections import deque
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+
+from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
+from fruitnerfpp_ros.core.progress import ProgressEvent
+from fruitnerfpp_ros.errors import FruitNerfError
+from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler, ThrottledLog
+from fruitnerfpp_ros.nodes.params import declare_parameters, keyframe_config, pipeline_configs, settings_mapping
+from fruitnerfpp_ros.nodes.results import (DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, diagnostics_msg, result_messages,
+                                           write_report)
+
+__all__ = ['FruitCounterNode', 'main', 'default_output_dir', 'LATCHED_QOS']
+
+#: Results: late subscribers get the last message (RViz, Foxglove, farm software joining later).
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
+                            durability=DurabilityPolicy.TRANSIENT_LOCAL)
+_TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
+_TRAIN_STATES = {'train': 'training', 'export': 'exporting', 'cluster': 'counting', 'count': 'counting'}
+
+
+def default_output_dir() -> Path:
+    """``$ROS_HOME/fruitnerfpp/run_<UTC time>`` (``ROS_HOME`` defaults to ``~/.ros``)."""
+    ros_home = Path(os.environ.get('ROS_HOME') or Path.home() / '.ros')
+    return ros_home / 'fruitnerfpp' / datetime.now(timezone.utc).strftime('run_%Y%m%dT%H%M%SZ')
+
+
+class FruitCounterNode(Node):
+    """Counts fruit from posed images and instance masks (see the module docstring)."""
+
+    def __init__(self, node_name: str = 'fruit_counter', **kwargs: Any) -> None:
+        super().__init__(node_name, **kwargs)
+        self.settings = declare_parameters(self)
+        s = self.settings
+        self.run_dir = Path(s.output_dir).expanduser() if s.output_dir else default_output_dir()
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        (self.run_dir / 'params.yaml').write_text(yaml.safe_dump(
+            {'/**': {'ros__parameters': settings_mapping(s)}}, sort_keys=False))
+        self.store = KeyframeStore(self.run_dir / 'keyframes', keyframe_config(s))
+        self.assembler = FrameAssembler(s, self.store, self._log)
+        self._warn_throttled = ThrottledLog(self._log, period_s=30.0)
+
+        # Inputs: callbacks enqueue only.
+        self._seq = itertools.count()
+        self._queues: dict[str, deque[tuple[int, Any]]] = {}
+        self._queue_lock = threading.Lock()
+        self.dropped: dict[str, int] = {}
+        self._received: dict[str, int] = {}
+        self._last_rx: dict[str, float] = {}
+        self._started = time.monotonic()
+        self._rate_window: dict[str, int] = {}
+        sensor_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=s.queue_size,
+                                reliability=ReliabilityPolicy.BEST_EFFORT if s.input_reliability == 'best_effort'
+                                else ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
+        inputs = ReentrantCallbackGroup()
+        from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+        self._subscribe('image', CompressedImage if s.compressed_image else Image, s.image_topic, sensor_qos, inputs)
+        self._subscribe('camera_info', CameraInfo, s.camera_info_topic, sensor_qos, inputs)
+        if self.assembler.mask_source.topic is not None:
+            self._subscribe('mask', Image, self.assembler.mask_source.topic, sensor_qos, inputs)
+        if s.pose_source == 'pose':
+            from geometry_msgs.msg import PoseStamped
+            self._subscribe('pose', PoseStamped, s.pose_topic, sensor_qos, inputs)
+        elif s.pose_source == 'odometry':
+            from nav_msgs.msg import Odometry
+            self._subscribe('odometry', Odometry, s.odometry_topic, sensor_qos, inputs)
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            needs_tf = s.pose_source == 'tf' or (s.pose_source == 'odometry' and not s.camera_extrinsic)
+            self._log('error' if needs_tf else 'info',
+                      'tf2_msgs is not installed in this Python environment (it is not on PyPI): /tf and /tf_static '
+                      'are not subscribed' + ("; pose_source needs them: use pose_source 'pose', or 'odometry' "
+                                              'with camera_extrinsic, or run inside a ROS 2 installation'
+                                              if needs_tf else ''))
+        else:
+            self._subscribe('tf', TFMessage, '/tf', _TF_QOS, inputs)
+            self._subscribe('tf_static', TFMessage, '/tf_static', _TF_STATIC_QOS, inputs)
+
+        # Outputs.
+        import importlib
+        self._result_pubs = {}
+        for topic in OUTPUT_TOPICS:
+            package, _, name = topic.msg_type.split('/')
+            msg_class = getattr(importlib.import_module(f'{package}.msg'), name)
+            self._result_pubs[topic.name] = self.create_publisher(msg_class, f'~/{topic.name}', LATCHED_QOS)
+        from diagnostic_msgs.msg import DiagnosticArray
+        self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+
+        # Work: tick (processing) and services / diagnostics in separate groups, so neither blocks the other.
+        from std_srvs.srv import Trigger
+        control = MutuallyExclusiveCallbackGroup()
+        self.create_service(Trigger, '~/train', self._on_train, callback_group=control)
+        self.create_service(Trigger, '~/reset', self._on_reset, callback_group=control)
+        self.create_service(Trigger, '~/save', self._on_save, callback_group=control)
+        self.create_timer(0.02, self._tick, callback_group=MutuallyExclusiveCallbackGroup())
+        self.create_timer(s.diagnostics_period_s, self._publish_diagnostics, callback_group=control)
+
+        # Training state (written by the training thread, read by diagnostics and services).
+        self._state_lock = threading.Lock()
+        self.state = 'collecting'
+        self.phase = ''
+        self.progress = 0.0
+        self.last_error = ''
+        self.last_count: int | None = None
+        self.last_report: str | None = None
+        self._train_thread: threading.Thread | None = None
+        self._stop_event = threading.Event()
+        self._train_index = 0
+        self._auto_started = False
+        trigger = f'auto-train after {s.auto_train_after}' if s.auto_train_after else 'train on ~/train'
+        self.get_logger().info(f'collecting keyframes into {self.store.directory} (pose source {s.pose_source}, '
+                               f'{trigger})')
+
+    # ------------------------------------------------------------------ logging
+    def _log(self, level: str, message: str) -> None:
+        # One call site per severity: rclpy refuses a severity change at one call site.
+        if level == 'error':
+            self.get_logger().error(message)
+        elif level == 'warn':
+            self.get_logger().warning(message)
+        else:
+            self.get_logger().info(message)
+
+    # ------------------------------------------------------------------ inputs
+    def _subscribe(self, role: str, msg_type: Any, topic: str, qos: QoSProfile, group: Any) -> None:
+        self._queues[role] = deque()
+        self.dropped[role] = 0
+        self._received[role] = 0
+        self._rate_window[role] = 0
+        limit = self.settings.queue_size if role not in ('tf', 'tf_static') else max(self.settings.queue_size, 200)
+
+        def enqueue(msg: Any) -> None:
+            with self._queue_lock:
+                queue = self._queues[role]
+                if len(queue) >= limit:
+                    queue.popleft()
+                    self.dropped[role] += 1
+                queue.append((next(self._seq), msg))
+                self._received[role] += 1
+                self._rate_window[role] += 1
+                self._last_rx[role] = time.monotonic()
+        self.create_subscription(msg_type, topic, enqueue, qos, callback_group=group)
+
+    def _tick(self) -> None:
+        with self._queue_lock:
+            batches = [[(seq, role, msg) for seq, msg in queue] for role, queue in self._queues.items()]
+            for queue in self._queues.values():
+                queue.clear()
+        for _, role, msg in heapq.merge(*batches, key=lambda e: e[0]):
+            try:
+                self.assembler.on_message(role, msg)
+            except Exception as err:  # noqa: BLE001 - nothing a message does may stop the node
+                self._log('error', f'{self.assembler.topic_of(role)}: message dropped: {type(err).__name__}: {err}')
+        s = self.settings
+        if s.auto_train_after and not self._auto_started and len(self.store) >= s.auto_train_after:
+            self._auto_started = True
+            ok, message = self.start_training()
+            self._log('info' if ok else 'warn', f'auto-train after {s.auto_train_after} keyframes: {message}')
+
+    # ------------------------------------------------------------------ training
+    @property
+    def training(self) -> bool:
+        return self._train_thread is not None and self._train_thread.is_alive()
+
+    def start_training(self) -> tuple[bool, str]:
+        """Start a training run on the keyframes collected so far; returns (started, message)."""
+        if self.training:
+            return False, f'training already running ({self.phase or self.state})'
+        n = len(self.store)
+        if n < self.settings.min_keyframes:
+            return False, f'only {n} keyframe(s) collected, min_keyframes is {self.settings.min_keyframes}'
+        self._train_index += 1
+        index = self._train_index
+        self._stop_event = threading.Event()
+        with self._state_lock:
+            self.state, self.phase, self.progress, self.last_error = 'training', '', 0.0, ''
+        self._train_thread = threading.Thread(target=self._train_worker, args=(index, self._stop_event),
+                                              name=f'fruit_counter_train_{index}', daemon=True)
+        self._train_thread.start()
+        return True, f'training run {index} started on {n} keyframes ({self.run_dir / f"train_{index:03d}"})'
+
+    def _on_progress(self, event: ProgressEvent) -> None:
+        head = event.phase.split(':')[0]
+        with self._state_lock:
+            self.state = _TRAIN_STATES.get(head, 'training')
+            self.phase = event.phase
+            self.progress = event.fraction
+
+    def _train_worker(self, index: int, stop_event: threading.Event) -> None:
+        try:
+            from fruitnerfpp_ros.core.pipeline import run_pipeline
+            configs = pipeline_configs(self.settings)
+            for warning in configs.warnings:
+                self.get_logger().warning(warning)
+            dataset = self.store.snapshot(self.run_dir / 'datasets' / f'train_{index:03d}')
+            stamp_ns = max(f.stamp_ns or 0 for f in self.store.frames)
+            n_keyframes = len(self.store)
+            result = run_pipeline(dataset, self.run_dir / f'train_{index:03d}', train_config=configs.train,
+                                  export_config=configs.export, cluster_config=configs.cluster,
+                                  device=self.settings.device, progress=self._on_progress, stop_event=stop_event)
+            if stop_event.is_set():
+                with self._state_lock:
+                    self.state, self.phase = 'collecting', ''
+                self.get_logger().info(f'training run {index} stopped')
+                return
+            messages = result_messages(result.count, result.cloud, self.settings.world_frame, stamp_ns,
+                                       f'{self.run_dir.name}/train_{index:03d}',
+                                       {'keyframes': n_keyframes, 'preset': configs.preset})
+            for name, msg in messages.items():
+                self._result_pubs[name].publish(msg)
+            write_report(self.run_dir / f'train_{index:03d}' / 'fruit_report.json', messages['fruit_report'].data)
+            with self._state_lock:
+                self.state, self.phase, self.progress = 'done', '', 1.0
+                self.last_count = int(result.count.count)
+                self.last_report = messages['fruit_report'].data
+            self.get_logger().info(f'training run {index}: {result.count.count} fruits counted from '
+                                   f'{n_keyframes} keyframes; published on ~/fruit_count and friends')
+        except FruitNerfError as err:
+            self._training_failed(index, str(err))
+        except Exception as err:  # noqa: BLE001 - a failed run must not take the node down
+            self._training_failed(index, f'{type(err).__name__}: {err}')
+
+    def _training_failed(self, index: int, message: str) -> None:
+        with self._state_lock:
+            self.state, self.last_error = 'error', message
+        self.get_logger().error(f'training run {index} failed: {message}; the keyframes stay in '
+                                f'{self.store.directory}')
+
+    def stop_training(self, timeout_s: float = 10.0) -> None:
+        """Ask a running training to stop and wait up to ``timeout_s`` for it."""
+        self._stop_event.set()
+        if self._train_thread is not None:
+            self._train_thread.join(timeout_s)
+
+    # ------------------------------------------------------------------ services
+    def _on_train(self, request: Any, response: Any) -> Any:
+        response.success, response.message = self.start_training()
+        return response
+
+    def _on_reset(self, request: Any, response: Any) -> Any:
+        self.stop_training(timeout_s=30.0)  # training stops within a step; its snapshot points into keyframes/
+        moved = self.store.reset()
+        self.assembler.reset()
+        self._auto_started = False
+        with self._state_lock:
+            self.state, self.phase, self.progress, self.last_error = 'collecting', '', 0.0, ''
+        response.success = True
+        response.message = f'reset; previous keyframes kept in {moved}' if moved else 'reset; nothing collected yet'
+        return response
+
+    def _on_save(self, request: Any, response: Any) -> Any:
+        saved = [f'keyframes: {self.store.directory} ({len(self.store)})']
+        if self.last_report is not None:
+            saved.append(f'report: {write_report(self.run_dir / "fruit_report.json", self.last_report)}')
+        response.success, response.message = True, '; '.join(saved)
+        return response
+
+    # ------------------------------------------------------------------ diagnostics
+    def _publish_diagnostics(self) -> None:
+        s = self.settings
+        now = time.monotonic()
+        with self._queue_lock:
+            rates = {role: n / s.diagnostics_period_s for role, n in self._rate_window.items()}
+            self._rate_window = dict.fromkeys(self._rate_window, 0)
+            last_rx = dict(self._last_rx)
+        with self._state_lock:
+            state, phase, progress, error = self.state, self.phase, self.progress, self.last_error
+        # Inputs are expected while collecting; once a drive is done and training runs, silence is normal.
+        silent = [role for role in self.assembler.required_roles() if role in self._queues
+                  and now - last_rx.get(role, self._started) > s.silent_input_warning_s] \
+            if state == 'collecting' and not self.training else []
+        for role in silent:
+            self._warn_throttled('warn', f'silent:{role}', f'no message on {self.assembler.topic_of(role)} for '
+                                 f'{now - last_rx.get(role, self._started):.0f} s')
+        status = self.assembler.status()
+        level = 'error' if state == 'error' else 'warn' if silent else 'ok'
+        message = (f'{state}' + (f' {phase} {100 * progress:.0f}%' if phase else '')
+                   + (f'; silent inputs: {", ".join(self.assembler.topic_of(r) for r in silent)}' if silent else '')
+                   + (f'; {error}' if error else ''))
+        values = {'state': state, 'phase': phase, 'progress': f'{progress:.3f}', 'keyframes': status['keyframes'],
+                  'fruit_count': '' if self.last_count is None else self.last_count, 'run_dir': self.run_dir,
+                  'dropped_queue': sum(self.dropped.values()), 'frame_errors': sum(status['errors'].values()),
+                  'sync_unmatched': sum(status['sync_unmatched'].values())}
+        values.update({f'rate_hz/{self.assembler.topic_of(r)}': f'{v:.1f}' for r, v in rates.items()})
+        self._diagnostics_pub.publish(diagnostics_msg(f'{self.get_name()}: pipeline', self.get_name(), level,
+                                                      message, values, self.get_clock().now().nanoseconds))
+
+
+def main(args: list[str] | None = None) -> int:
+    """Run the node (``ros2 run fruitnerfpp_ros fruit_counter [--ros-args ...]``)."""
+    rclpy.init(args=args)
+    node = None
+    try:
+        node = FruitCounterNode()
+        executor = MultiThreadedExecutor(num_threads=3)
+        executor.add_node(node)
+        executor.spin()
+    except FruitNerfError as err:
+        print(f'fruit_counter: error: {err}', file=sys.stderr)
+        return 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.stop_training(timeout_s=5.0)
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == '__main__':
+    sys.exit(main())

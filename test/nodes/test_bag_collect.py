@@ -1,0 +1,116 @@
+"""Bag replay without training: topics, storages, bad input (every fault logged, good frames kept on disk)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+from fruitnerfpp_ros.core.geometry import opengl_from_optical
+from fruitnerfpp_ros.errors import BagError
+from fruitnerfpp_ros.nodes.bag_replay import collect_keyframes, replay_bag
+from fruitnerfpp_ros.nodes.params import settings_from_parameters
+from test.nodes import bag_factory as bf
+
+SETTINGS = settings_from_parameters({'min_translation_m': 0.1})
+
+
+class Logs(list):
+    def __call__(self, level: str, message: str) -> None:
+        self.append((level, message))
+
+    def text(self) -> str:
+        return '\n'.join(m for _, m in self)
+
+
+@pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
+def test_clean_bag_gives_every_frame_with_exact_pose(tmp_path: Path, storage: str) -> None:
+    bag = bf.write_bag(tmp_path / 'bag', bf.messages(6), storage)
+    assembler = collect_keyframes(bag, tmp_path / 'kf', SETTINGS, log=Logs())
+    data = read_transforms(tmp_path / 'kf')
+    assert [f.stamp_ns for f in data.frames] == [bf.START_NS + k * bf.PERIOD_NS for k in range(6)]
+    assert np.allclose(data.frames[3].T_world_camera, opengl_from_optical(bf.frame_pose(3)))
+    assert (data.intrinsics.cx, data.intrinsics.fl_x) == (bf.INTRINSICS.cx, bf.INTRINSICS.fl_x)
+    assert assembler.status()['errors'] == {}
+
+
+def test_tf_pose_source_reads_tf_from_the_bag(tmp_path: Path) -> None:
+    msgs = [m for m in bf.messages(5) if m[0] != '/camera/pose']
+    bag = bf.write_bag(tmp_path / 'bag', msgs, tf_frames=5)
+    settings = settings_from_parameters({'pose_source': 'tf', 'min_translation_m': 0.1})
+    collect_keyframes(bag, tmp_path / 'kf', settings, log=Logs())
+    frames = read_transforms(tmp_path / 'kf').frames
+    assert len(frames) == 5
+    assert np.allclose(frames[4].T_world_camera, opengl_from_optical(bf.frame_pose(4)), atol=1e-9)
+
+
+def test_faulty_frames_are_logged_and_skipped_good_ones_stay(tmp_path: Path) -> None:
+    msgs = bf.messages(8, bad_encoding_at=(1,), nan_pose_at=(3,), small_mask_at=(5,))
+    bag = bf.write_bag(tmp_path / 'bag', msgs)
+    logs = Logs()
+    assembler = collect_keyframes(bag, tmp_path / 'kf', SETTINGS, log=logs)
+    text = logs.text()
+    assert "/camera/image_raw: unsupported image encoding 'yuv422'" in text
+    assert '/camera/pose: pose is not finite' in text
+    assert '/camera/instance_mask: mask is 16x12 but the image is 32x24' in text
+    stamps = [f.stamp_ns for f in read_transforms(tmp_path / 'kf').frames]
+    assert stamps == [bf.START_NS + k * bf.PERIOD_NS for k in (0, 2, 4, 6, 7)]
+    assert sum(assembler.status()['errors'].values()) >= 3
+
+
+def test_stamps_that_never_sync(tmp_path: Path) -> None:
+    bag = bf.write_bag(tmp_path / 'bag', bf.messages(5, mask_offset_ns=50_000_000))
+    logs = Logs()
+    with pytest.raises(BagError, match='no keyframe could be made'):
+        replay_bag(bag, tmp_path / 'run', SETTINGS, log=logs)
+    assert 'stamps do not match within sync_slop_s=0.02 s' in logs.text()
+
+
+def test_missing_camera_info_topic_lists_the_bag_topics(tmp_path: Path) -> None:
+    bag = bf.write_bag(tmp_path / 'bag', bf.messages(3, camera_info=False))
+    with pytest.raises(BagError, match=r'no topic /camera/camera_info \(camera_info\).*topics in the bag: '
+                                       r'/camera/image_raw \[sensor_msgs/msg/Image\]'):
+        collect_keyframes(bag, tmp_path / 'kf', SETTINGS, log=Logs())
+
+
+def test_renamed_topic_via_params_file(tmp_path: Path) -> None:
+    msgs = [(('/cam/rgb' if t == '/camera/image_raw' else t), ty, s, m) for t, ty, s, m in bf.messages(3)]
+    bag = bf.write_bag(tmp_path / 'bag', msgs)
+    with pytest.raises(BagError, match='no topic /camera/image_raw'):
+        collect_keyframes(bag, tmp_path / 'kf', SETTINGS, log=Logs())
+    settings = settings_from_parameters({'image_topic': '/cam/rgb', 'min_translation_m': 0.1})
+    assert len(collect_keyframes(bag, tmp_path / 'kf2', settings, log=Logs()).store) == 3
+
+
+def test_missing_and_corrupt_and_truncated_bags(tmp_path: Path) -> None:
+    with pytest.raises(BagError, match='no such bag'):
+        collect_keyframes(tmp_path / 'nope', tmp_path / 'kf', SETTINGS, log=Logs())
+    bag = bf.write_bag(tmp_path / 'bag', bf.messages(6))
+    mcap_file = next(bag.glob('*.mcap'))
+    data = mcap_file.read_bytes()
+    mcap_file.write_bytes(data[:len(data) // 2])
+    with pytest.raises(BagError, match='corrupt or truncated|cannot open'):
+        collect_keyframes(bag, tmp_path / 'kf', SETTINGS, log=Logs())
+    mcap_file.write_bytes(b'\x89MCAP0\r\n' + bytes(range(256)) * 4)
+    with pytest.raises(BagError, match='corrupt or truncated|cannot open'):
+        collect_keyframes(bag, tmp_path / 'kf3', SETTINGS, log=Logs())
+    sqlite_bag = bf.write_bag(tmp_path / 'bag_sqlite', bf.messages(6), 'sqlite3')
+    db = next(sqlite_bag.glob('*.db3'))
+    db.write_bytes(db.read_bytes()[:1000])
+    with pytest.raises(BagError, match='corrupt or truncated|cannot open'):
+        collect_keyframes(sqlite_bag, tmp_path / 'kf4', SETTINGS, log=Logs())
+
+
+def test_replay_into_an_existing_run_dir(tmp_path: Path) -> None:
+    from fruitnerfpp_ros.errors import ConfigError
+    bag = bf.write_bag(tmp_path / 'bag', bf.messages(6))
+    run = tmp_path / 'run'
+    (run / 'checkpoints').mkdir(parents=True)
+    with pytest.raises(ConfigError, match='already holds a training run'):
+        replay_bag(bag, run, SETTINGS, log=Logs())
+    for _ in range(2):  # collecting twice does not mix the keyframes of both replays
+        assert replay_bag(bag, run, SETTINGS, log=Logs(), train=False).n_keyframes == 6
+    assert len(read_transforms(run / 'keyframes').frames) == 6
+    assert len(list(run.glob('keyframes_previous_*'))) == 1
