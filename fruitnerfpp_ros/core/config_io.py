@@ -17,7 +17,8 @@ import yaml
 
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['config_from_mapping', 'config_to_mapping', 'load_config', 'save_config', 'replace_nested']
+__all__ = ['config_from_mapping', 'config_to_mapping', 'load_config', 'load_yaml_mapping', 'save_config',
+           'replace_nested']
 
 T = TypeVar('T')
 
@@ -115,18 +116,30 @@ def config_to_mapping(config: Any) -> dict[str, Any]:
     return plain(config)
 
 
-def load_config(cls: type[T], path: str | Path, *, section: str | None = None) -> T:
-    """Load ``cls`` from a YAML file, optionally from one top-level ``section`` of it."""
+def load_yaml_mapping(path: str | Path, *, kind: str = 'config file') -> dict[str, Any]:
+    """The top-level mapping of a YAML file (an empty file gives ``{}``).
+
+    Raises:
+        ConfigError: the file is missing, not valid YAML, or its top level is not a mapping (``kind`` names the
+            file's role in the message, e.g. ``params file``).
+    """
     path = Path(path)
     try:
         data = yaml.safe_load(path.read_text()) or {}
     except FileNotFoundError as err:
-        raise ConfigError(f'config file not found: {path}') from err
+        raise ConfigError(f'{kind} not found: {path}') from err
     except yaml.YAMLError as err:
         raise ConfigError(f'{path}: not valid YAML: {err}') from err
+    if not isinstance(data, Mapping):
+        raise ConfigError(f'{path}: expected a mapping at top level, got {type(data).__name__}')
+    return dict(data)
+
+
+def load_config(cls: type[T], path: str | Path, *, section: str | None = None) -> T:
+    """Load ``cls`` from a YAML file, optionally from one top-level ``section`` of it."""
+    path = Path(path)
+    data: Any = load_yaml_mapping(path)
     if section is not None:
-        if not isinstance(data, Mapping):
-            raise ConfigError(f'{path}: expected a mapping at top level')
         data = data.get(section, {})
     if not isinstance(data, Mapping):
         raise ConfigError(f'{path}: expected a mapping, got {type(data).__name__}')

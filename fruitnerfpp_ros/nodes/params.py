@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal, Mapping, NamedTuple
 
-import yaml
 
-from fruitnerfpp_ros.core.config_io import config_from_mapping, config_to_mapping, replace_nested
+from fruitnerfpp_ros.core.config_io import (config_from_mapping, config_to_mapping, load_yaml_mapping,
+                                            replace_nested)
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeConfig
 from fruitnerfpp_ros.errors import ConfigError
 
@@ -67,7 +67,7 @@ class CounterSettings:
     auto_train_after: int = _p(0, 'Start training by itself once this many keyframes are collected (once); '
                                '0 = only on ~/train.')
     min_keyframes: int = _p(5, 'Fewest keyframes that ~/train accepts.')
-    config_file: str = _p('', "Optional YAML with sections 'train', 'export', 'cluster' overriding the preset "
+    config_file: str = _p('', "Optional YAML with sections 'train', 'export', 'clustering' overriding the preset "
                           'and the export / clustering defaults.')
     output_dir: str = _p('', "Run directory (keyframes/, training runs, results); '' = "
                          '~/.ros/fruitnerfpp/run_<UTC time>.')
@@ -132,14 +132,7 @@ def load_parameter_file(path: str | Path, node_name: str = 'fruit_counter') -> d
         ConfigError: the file is missing, not YAML or not shaped like a params file.
     """
     path = Path(path)
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except FileNotFoundError as err:
-        raise ConfigError(f'params file not found: {path}') from err
-    except yaml.YAMLError as err:
-        raise ConfigError(f'{path}: not valid YAML: {err}') from err
-    if not isinstance(data, Mapping):
-        raise ConfigError(f'{path}: expected a mapping at top level')
+    data = load_yaml_mapping(path, kind='params file')
     merged: dict[str, Any] = {}
     sections = [v for k, v in data.items() if k in ('/**', node_name, f'/{node_name}')]
     if not sections and not any(isinstance(v, Mapping) and 'ros__parameters' in v for v in data.values()):
@@ -189,18 +182,16 @@ def pipeline_configs(settings: CounterSettings, *, preset: str | None = None) ->
     sections: dict[str, Any] = {}
     if settings.config_file:
         path = Path(settings.config_file)
-        try:
-            sections = yaml.safe_load(path.read_text()) or {}
-        except (OSError, yaml.YAMLError) as err:
-            raise ConfigError(f'config_file {path}: {err}') from err
-        if not isinstance(sections, Mapping) or set(sections) - {'train', 'export', 'cluster'}:
-            raise ConfigError(f"config_file {path}: expected only the sections 'train', 'export', 'cluster'")
+        sections = load_yaml_mapping(path, kind='config_file')
+        if set(sections) - {'train', 'export', 'clustering'}:
+            raise ConfigError(f"config_file {path}: expected only the sections 'train', 'export', 'clustering' "
+                              '(the same file `fruitnerfpp run --config` reads)')
     try:
         train = TrainConfig.preset(name)
         if sections.get('train'):
             train = replace_nested(train, sections['train'])
         export = config_from_mapping(ExportConfig, sections.get('export') or {})
-        cluster = config_from_mapping(ClusterConfig, sections.get('cluster') or {})
+        cluster = config_from_mapping(ClusterConfig, sections.get('clustering') or {})
     except ConfigError as err:
         raise ConfigError(f'config_file {settings.config_file}: {err}' if settings.config_file else str(err)) \
             from err

@@ -24,6 +24,7 @@ from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.nodes.conversions import points_from_cloud_msg
 from fruitnerfpp_ros.nodes.fruit_counter import LATCHED_QOS, FruitCounterNode
 from test.nodes import bag_factory as bf
+from test.accuracy_targets import expect_accuracy
 
 pytestmark = pytest.mark.ros
 
@@ -234,4 +235,4 @@ def test_orchard_sim_to_fruit_counter_counts_within_10_percent(graph: Graph, tmp
     assert set(ids[ids > 0].tolist()) == set(range(1, count + 1))
     report = json.loads(received['fruit_report'].data)
     assert report['total'] == count and [f['id'] for f in report['fruits']] == list(range(1, count + 1))
-    assert abs(count - gt_seen) <= 0.1 * gt_seen, f'counted {count}, ground truth {gt_seen}'
+    expect_accuracy(abs(count - gt_seen) <= 0.1 * gt_seen, f'counted {count}, ground truth {gt_seen}')

@@ -1,0 +1,163 @@
+"""``fruitnerfpp export | count | eval | run``: from a trained run (or a dataset) to a scored fruit count.
+
+- ``export RUN_DIR [--out cloud.ply]``: sample the trained field into a fruit point cloud (+ .npz, export.json).
+- ``count RUN_DIR|cloud.ply [--out counts.json]``: cluster the cloud into fruits.
+- ``eval counts.json --gt gt_fruits.json [--json]``: precision / recall / F1 (Hungarian and greedy matching).
+- ``run DATA_DIR --out RUN_DIR [--preset tiny]``: train -> export -> count (-> eval), then a result table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any, TypeVar
+
+from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.config_io import config_from_mapping, load_yaml_mapping, replace_nested
+from fruitnerfpp_ros.core.export.config import ExportConfig
+from fruitnerfpp_ros.errors import ConfigError
+
+__all__ = ['register', 'load_section']
+
+T = TypeVar('T')
+
+
+def load_section(cls: type[T], path: Path | None, section: str) -> T:
+    """``cls`` from a YAML file that is either the section itself or holds it under ``section``."""
+    if path is None:
+        return cls()
+    data = load_yaml_mapping(path)
+    if section in data and isinstance(data[section], dict):
+        data = data[section]
+    elif any(key in data for key in ('train', 'export', 'clustering')):
+        data = {}
+    try:
+        return config_from_mapping(cls, data)
+    except ConfigError as err:
+        raise ConfigError(f'{path}: {err}') from err
+
+
+def _overrides(config: T, **values: Any) -> T:
+    chosen = {k: v for k, v in values.items() if v is not None}
+    return replace_nested(config, chosen) if chosen else config
+
+
+def _export_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--density-threshold', type=float, help='minimum density in 1/m (default: the run\'s '
+                        'surface density ln2/step)')
+    parser.add_argument('--fruit-threshold', type=float, help='minimum fruit probability (default 0.5)')
+    parser.add_argument('--grid-points', type=int, help='grid samples over the scene box')
+    parser.add_argument('--voxel-size', type=float, help='grid spacing in metres (overrides --grid-points)')
+
+
+def _cluster_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument('--lambda-e', type=float, help='weight of the Euclidean term, 1/m')
+    parser.add_argument('--metric', choices=('summed', 'concatenated'), help='clustering metric')
+    parser.add_argument('--jobs', type=int, help='worker processes for the partitions')
+
+
+def _export_config(args: argparse.Namespace, path: Path | None) -> ExportConfig:
+    return _overrides(load_section(ExportConfig, path, 'export'), density_threshold=args.density_threshold,
+                      fruit_threshold=args.fruit_threshold, grid_points=args.grid_points,
+                      voxel_size_m=args.voxel_size)
+
+
+def _cluster_config(args: argparse.Namespace, path: Path | None) -> ClusterConfig:
+    return _overrides(load_section(ClusterConfig, path, 'clustering'), lambda_e=args.lambda_e, metric=args.metric,
+                      n_jobs=args.jobs)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser('export', help='export the fruit point cloud of a trained run',
+                              description='Sample the trained field on a grid over the scene box; keep points '
+                                          'passing the density and fruit-probability thresholds.')
+    p.add_argument('run_dir', type=Path, help='training run directory')
+    p.add_argument('--out', type=Path, help='output .ply (default RUN_DIR/cloud.ply; a .npz is written beside)')
+    p.add_argument('--config', type=Path, help='export YAML (e.g. config/export.yaml)')
+    p.add_argument('--device', default='auto', help='auto, cpu, cuda, cuda:N')
+    _export_args(p)
+    p.set_defaults(func=_run_export)
+
+    p = subparsers.add_parser('count', help='cluster a fruit point cloud into fruits',
+                              description='k-means partitions + HDBSCAN with the summed embedding/Euclidean metric.')
+    p.add_argument('source', type=Path, help='run directory (its cloud.npz / cloud.ply) or a .ply / .npz cloud')
+    p.add_argument('--out', type=Path, help='counts.json path (default: next to the cloud)')
+    p.add_argument('--config', type=Path, help='clustering YAML (e.g. config/clustering.yaml)')
+    _cluster_args(p)
+    p.set_defaults(func=_run_count)
+
+    p = subparsers.add_parser('eval', help='score a counts.json against gt_fruits.json',
+                              description='One-to-one matching within one GT fruit diameter: Hungarian (headline) '
+                                          "and the paper's greedy nearest-unmatched.")
+    p.add_argument('counts', type=Path, help='counts.json')
+    p.add_argument('--gt', type=Path, required=True, help='gt_fruits.json')
+    p.add_argument('--json', action='store_true', help='print one JSON object (count, gt_count, precision, '
+                   'recall, f1, ...)')
+    p.add_argument('--out', type=Path, help='also write the metrics to this eval.json')
+    p.add_argument('--tolerance', type=float, default=1.0, help='match reach in GT diameters (default 1)')
+    p.add_argument('--include-unseen', action='store_true',
+                   help='count GT fruits seen by no training view in the recall (excluded by default)')
+    p.set_defaults(func=_run_eval)
+
+    p = subparsers.add_parser('run', help='train -> export -> count (-> eval) on a dataset',
+                              description='The whole pipeline on a transforms.json dataset; evaluates when the '
+                                          'dataset has gt_fruits.json.')
+    p.add_argument('data_dir', type=Path, help='transforms.json dataset directory')
+    p.add_argument('--out', type=Path, required=True, help='run directory')
+    p.add_argument('--preset', default='tiny', help='training preset: tiny, default, paper (default tiny)')
+    p.add_argument('--device', default='auto', help='auto, cpu, cuda, cuda:N')
+    p.add_argument('--config', type=Path, help='YAML with optional sections train / export / clustering')
+    p.add_argument('--resume', action='store_true', help='continue training from RUN_DIR')
+    p.add_argument('--skip-training', action='store_true', help='reuse the trained RUN_DIR as is')
+    _export_args(p)
+    _cluster_args(p)
+    p.set_defaults(func=_run_pipeline)
+
+
+def _run_export(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.core.pipeline import export_run
+
+    result = export_run(args.run_dir, _export_config(args, args.config), device=args.device, out=args.out)
+    out = args.out or args.run_dir / 'cloud.ply'
+    print(result.report.explain())
+    print(f'{len(result.cloud)} fruit points -> {out} (+ {Path(out).with_suffix(".npz").name})')
+    return 0
+
+
+def _run_count(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.core.pipeline import count_run
+
+    count, cloud, counts_path = count_run(args.source, _cluster_config(args, args.config), out=args.out)
+    print(f'fruits: {count.count} (from {len(cloud)} points, {int((count.labels == 0).sum())} noise) -> '
+          f'{counts_path}')
+    return 0
+
+
+def _run_eval(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.core.pipeline import evaluate_run
+
+    metrics = evaluate_run(args.counts, args.gt, out=args.out, tolerance=args.tolerance,
+                           exclude_unseen=not args.include_unseen)
+    print(json.dumps(metrics.to_json()) if args.json else metrics.table())
+    return 0
+
+
+def _run_pipeline(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.core.pipeline import run_pipeline
+    from fruitnerfpp_ros.core.training import TrainConfig
+
+    train_config = TrainConfig.preset(args.preset)
+    if args.config is not None:
+        data = load_yaml_mapping(args.config)
+        if isinstance(data.get('train'), dict):
+            train_config = replace_nested(train_config, data['train'])
+    result = run_pipeline(args.data_dir, args.out, train_config=train_config,
+                          export_config=_export_config(args, args.config),
+                          cluster_config=_cluster_config(args, args.config), device=args.device,
+                          show_progress=True, resume=args.resume, skip_training=args.skip_training)
+    if result.stopped:
+        print(f'stopped early; resume with: fruitnerfpp run {args.data_dir} --out {args.out} --resume')
+        return 1
+    print(result.table())
+    return 0

@@ -1,0 +1,212 @@
+"""Count fruits in an exported fruit point cloud: subsample -> partitions -> HDBSCAN -> merge -> assign -> fruits.
+
+Cluster ids start at 1 and are ordered by fruit centre (x, then y, then z); 0 means noise / unassigned. The same
+ids appear in the labels, ``counts.json`` and the ROS outputs.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing
+import sys
+import time
+from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.clustering.graph import nearest_labels
+from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_job, cluster_partition, worker_init
+from fruitnerfpp_ros.core.clustering.merge import keep_owned_clusters, merge_close_centers, merge_clusters
+from fruitnerfpp_ros.core.clustering.partitions import make_partitions
+from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.errors import ClusteringError
+
+__all__ = ['count_fruits', 'fruits_from_labels', 'shutdown_workers']
+
+_POOL: ProcessPoolExecutor | None = None
+_POOL_JOBS = 0
+
+
+def _main_module_is_spawn_safe() -> bool:
+    """False for a ``python script.py`` without an ``if __name__ == '__main__'`` guard: spawned workers re-run
+    the main script on import, so such a script would run itself again in every worker."""
+    path = getattr(sys.modules.get('__main__'), '__file__', None)
+    if not path or not str(path).endswith('.py'):
+        return True
+    try:
+        return '__main__' in Path(path).read_text(errors='replace')
+    except OSError:
+        return True
+
+
+def _pool(n_jobs: int) -> Executor:
+    """A process pool kept for the life of the process (workers warm their JIT once)."""
+    global _POOL, _POOL_JOBS
+    if _POOL is None or _POOL_JOBS != n_jobs:
+        shutdown_workers()
+        _POOL = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context('spawn'),
+                                    initializer=worker_init)
+        _POOL_JOBS = n_jobs
+    return _POOL
+
+
+def shutdown_workers() -> None:
+    """Stop the partition worker processes (they restart on the next parallel count)."""
+    global _POOL
+    if _POOL is not None:
+        _POOL.shutdown(wait=False, cancel_futures=True)
+        _POOL = None
+
+
+def _validate(cloud: FruitPointCloud) -> None:
+    if not isinstance(cloud, FruitPointCloud):
+        raise ClusteringError(f'count_fruits expects a FruitPointCloud, got {type(cloud).__name__}')
+    if len(cloud) and (not np.all(np.isfinite(cloud.xyz)) or not np.all(np.isfinite(cloud.embedding))):
+        raise ClusteringError('fruit point cloud holds NaN or infinite positions or embeddings')
+    if len(cloud) and cloud.embedding_dim == 0:
+        raise ClusteringError('fruit point cloud has no embedding columns (D = 0)')
+
+
+def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, list[Fruit]]:
+    """Fruit records from cluster labels, renumbered 1..K by centre (x, y, z).
+
+    Args:
+        xyz: [N, 3] positions (m).
+        labels: [N] cluster labels, < 0 or 0-based; -1 = noise.
+
+    Returns:
+        ([N] int32 labels with ids 1..K and 0 = noise, the K fruits in id order).
+    """
+    out = np.zeros(len(xyz), np.int32)
+    valid = labels >= 0
+    if not np.any(valid):
+        return out, []
+    order = np.argsort(labels[valid], kind='stable')
+    points = np.flatnonzero(valid)[order]
+    sorted_labels = labels[valid][order]
+    starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]])
+    groups = np.split(points, starts[1:])
+    centers = np.array([np.median(xyz[g], axis=0) for g in groups], np.float64)
+    rank = np.lexsort((centers[:, 2], centers[:, 1], centers[:, 0]))
+    fruits = []
+    for new_id, g_index in enumerate(rank, start=1):
+        g = groups[g_index]
+        p = xyz[g].astype(np.float64)
+        center = centers[g_index]
+        lo, hi = np.percentile(p, [2.0, 98.0], axis=0)
+        radius = float(np.percentile(np.linalg.norm(p - center, axis=1), 90.0)) if len(g) > 1 else 0.0
+        out[g] = new_id
+        fruits.append(Fruit(id=new_id, center=center, diameter_m=2.0 * radius, extent_m=hi - lo, n_points=len(g)))
+    return out, fruits
+
+
+def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
+                 progress: ProgressCallback | None = None) -> CountResult:
+    """Cluster a fruit point cloud into fruits with the paper's multi-modal metric.
+
+    Args:
+        cloud: the exported fruit points (xyz in m, unit embeddings).
+        config: clustering settings (defaults when None).
+        progress: receives ``cluster`` phase events (one per partition).
+
+    Returns:
+        Labels (ids from 1, 0 = noise), one :class:`Fruit` per cluster, and stats (timings, partitions, subsample,
+        exact-row share of the graph).
+
+    Raises:
+        ClusteringError: on a malformed cloud (NaN, no embedding).
+    """
+    config = config or ClusterConfig()
+    progress = progress or ignore_progress
+    _validate(cloud)
+    n = len(cloud)
+    stats: dict[str, Any] = {'n_points': n, 'metric': config.metric, 'lambda_c': config.lambda_c,
+                             'lambda_e': config.lambda_e}
+    if n == 0:
+        stats['note'] = 'empty fruit point cloud: nothing to count'
+        return CountResult(np.zeros(0, np.int32), [], stats)
+    t0 = time.perf_counter()
+    xyz = np.ascontiguousarray(cloud.xyz, np.float32)
+    emb = np.asarray(cloud.embedding, np.float32)
+    emb = emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
+
+    rng = np.random.default_rng(config.seed)
+    if config.subsample_size and n > config.subsample_size:
+        sub = np.sort(rng.choice(n, config.subsample_size, replace=False))
+    else:
+        sub = np.arange(n)
+    n_sub = len(sub)
+    min_cluster_size = max(config.min_samples, 2, int(round(config.min_cluster_size * n_sub / n)))
+    n_partitions = config.partitions or math.ceil(n_sub / config.points_per_partition)
+    xyz_sub, emb_sub = xyz[sub], emb[sub]
+    parts = make_partitions(xyz_sub, n_partitions, overlap_m=config.overlap_m, seed=config.seed)
+    t_part = time.perf_counter()
+
+    n_jobs = min(config.n_jobs, len(parts.members))
+    jobs = [(xyz_sub[m], emb_sub[m]) for m in parts.members]
+    results: list[tuple[np.ndarray, float]] = []
+    parallel = n_jobs > 1 and n_sub >= config.parallel_min_points
+    if parallel and not _main_module_is_spawn_safe():
+        stats['parallel_error'] = 'main script has no __main__ guard; partitions ran in this process'
+        parallel = False
+    if parallel:
+        try:
+            pool = _pool(n_jobs)
+            futures = [pool.submit(cluster_job, p, e, config, min_cluster_size) for p, e in jobs]
+            for i, future in enumerate(futures):
+                results.append(future.result())
+                progress(ProgressEvent('cluster', i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
+        except (BrokenProcessPool, RuntimeError, OSError) as err:
+            # e.g. a script without an ``if __name__ == '__main__'`` guard cannot spawn workers
+            shutdown_workers()
+            stats['parallel_error'] = f'{type(err).__name__}: {err}'.splitlines()[0]
+            parallel, results = False, []
+    if not parallel:
+        for i, (p, e) in enumerate(jobs):
+            results.append(cluster_partition(p, e, config, min_cluster_size=min_cluster_size,
+                                             workers=config.n_jobs))
+            progress(ProgressEvent('cluster', i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
+    t_hdb = time.perf_counter()
+
+    clusters = []
+    for p, (members, (local, _)) in enumerate(zip(parts.members, results)):
+        clusters.extend(keep_owned_clusters(xyz_sub, members, local, p, parts.centers))
+    sub_labels = merge_clusters(n_sub, clusters)
+
+    if n_sub < n:
+        labels = np.full(n, -1, np.int64)
+        labels[sub] = sub_labels
+        rest = np.setdiff1d(np.arange(n), sub, assume_unique=True)
+        labels[rest] = nearest_labels(xyz[rest], emb[rest], xyz_sub, emb_sub, sub_labels, k=config.assign_k,
+                                      lambda_c=config.lambda_c, lambda_e=config.lambda_e, metric=config.metric,
+                                      workers=config.n_jobs)
+    else:
+        labels = sub_labels
+    t_assign = time.perf_counter()
+
+    clusters_before_merge = int(labels.max()) + 1 if len(labels) else 0
+    labels = merge_close_centers(xyz, labels, config.merge_centers_m)
+    clusters_before_filter = int(labels.max()) + 1 if len(labels) else 0
+    if np.any(labels >= 0):
+        sizes = np.bincount(labels[labels >= 0])
+        labels = np.where((labels >= 0) & (sizes[np.maximum(labels, 0)] >= config.min_fruit_points), labels, -1)
+    final_labels, fruits = fruits_from_labels(xyz, labels)
+    t_end = time.perf_counter()
+    exact = [r[1] for r in results]
+    stats.update({
+        'n_clustered': n_sub, 'partitions': len(parts.members), 'min_cluster_size_used': min_cluster_size,
+        'parallel_jobs': n_jobs if parallel else 1,
+        'clusters_before_merge': clusters_before_merge,
+        'clusters_before_size_filter': clusters_before_filter,
+        'noise_points': int(np.count_nonzero(final_labels == 0)),
+        'graph_exact_fraction': float(np.mean(exact)) if exact else 1.0,
+        'time_partition_s': t_part - t0, 'time_hdbscan_s': t_hdb - t_part, 'time_assign_s': t_assign - t_hdb,
+        'time_fruits_s': t_end - t_assign, 'time_total_s': t_end - t0,
+    })
+    return CountResult(final_labels, fruits, stats)

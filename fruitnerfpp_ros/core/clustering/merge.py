@@ -1,0 +1,115 @@
+"""Combine per-partition clusters into one labelling, so a fruit cut by a partition boundary counts once.
+
+Each partition clusters its cell plus an overlap margin and keeps only the clusters whose median lies in its own
+cell (:func:`keep_owned_clusters`). Clusters kept by two partitions that still share most of their points (a
+fruit larger than the margin, seen slightly differently from both sides) are merged (:func:`merge_clusters`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from fruitnerfpp_ros.core.clustering.partitions import assign_to_cells
+
+__all__ = ['keep_owned_clusters', 'merge_clusters', 'merge_close_centers']
+
+
+def keep_owned_clusters(xyz: np.ndarray, members: np.ndarray, local_labels: np.ndarray, partition: int,
+                        centers: np.ndarray) -> list[np.ndarray]:
+    """Clusters of one partition whose median lies in the partition's own k-means cell.
+
+    Args:
+        xyz: [N, 3] all clustered positions (m).
+        members: [M] indices of the partition's points into ``xyz``.
+        local_labels: [M] HDBSCAN labels of those points (-1 noise).
+        partition: index of this partition's cell.
+        centers: [S, 3] cell centres.
+
+    Returns:
+        One sorted index array (into ``xyz``) per kept cluster.
+    """
+    valid = local_labels >= 0
+    if not np.any(valid):
+        return []
+    order = np.argsort(local_labels[valid], kind='stable')
+    points = members[valid][order]
+    labels = local_labels[valid][order]
+    starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
+    groups = np.split(points, starts[1:])
+    medians = np.array([np.median(xyz[g], axis=0) for g in groups])
+    owned = assign_to_cells(medians, centers) == partition if len(centers) > 1 else np.ones(len(groups), bool)
+    return [np.sort(g) for g, keep in zip(groups, owned) if keep]
+
+
+def merge_clusters(n_points: int, clusters: list[np.ndarray], *, min_shared: float = 0.5) -> np.ndarray:
+    """One label per point from possibly overlapping clusters.
+
+    Clusters sharing at least ``min_shared`` of the smaller one's points are merged; a point left in two
+    unmerged clusters goes to the larger one.
+
+    Returns:
+        [n_points] int64 labels, -1 = noise, 0..K-1 in order of first appearance.
+    """
+    labels = np.full(n_points, -1, np.int64)
+    if not clusters:
+        return labels
+    sizes = np.array([len(c) for c in clusters])
+    point = np.concatenate(clusters)
+    owner = np.repeat(np.arange(len(clusters)), sizes)
+    order = np.lexsort((owner, point))
+    point, owner = point[order], owner[order]
+    dup = np.flatnonzero(point[1:] == point[:-1])
+    n_clusters = len(clusters)
+    if len(dup):
+        a, b = owner[dup], owner[dup + 1]
+        pair_keys, shared = np.unique(a * n_clusters + b, return_counts=True)
+        pa, pb = pair_keys // n_clusters, pair_keys % n_clusters
+        merge = shared >= min_shared * np.minimum(sizes[pa], sizes[pb])
+        graph = scipy.sparse.coo_matrix((np.ones(int(merge.sum())), (pa[merge], pb[merge])),
+                                        shape=(n_clusters, n_clusters))
+        _, root = connected_components(graph, directed=False)
+    else:
+        root = np.arange(n_clusters)
+    merged_size = np.bincount(root, weights=sizes)
+    # larger (merged) clusters are written last, so they win the remaining conflicts
+    rank = np.argsort(merged_size[root[owner]], kind='stable')
+    labels[point[rank]] = root[owner[rank]]
+    _, dense = np.unique(labels[labels >= 0], return_inverse=True)
+    labels[labels >= 0] = dense
+    return labels
+
+
+def merge_close_centers(xyz: np.ndarray, labels: np.ndarray, distance_m: float) -> np.ndarray:
+    """Merge clusters whose median centres lie closer than ``distance_m`` (transitively).
+
+    Args:
+        xyz: [N, 3] positions (m).
+        labels: [N] labels, -1 noise, 0..K-1 clusters.
+        distance_m: merge distance (m); <= 0 returns ``labels`` unchanged.
+
+    Returns:
+        [N] labels, -1 noise, 0..K'-1.
+    """
+    valid = labels >= 0
+    if distance_m <= 0 or not np.any(valid):
+        return labels
+    n_clusters = int(labels.max()) + 1
+    order = np.argsort(labels[valid], kind='stable')
+    points = np.flatnonzero(valid)[order]
+    sorted_labels = labels[valid][order]
+    starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]])
+    ids = sorted_labels[starts]
+    centers = np.array([np.median(xyz[g], axis=0) for g in np.split(points, starts[1:])])
+    pairs = cKDTree(centers).query_pairs(distance_m, output_type='ndarray')
+    if len(pairs) == 0:
+        return labels
+    graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), (ids[pairs[:, 0]], ids[pairs[:, 1]])),
+                                    shape=(n_clusters, n_clusters))
+    _, root = connected_components(graph, directed=False)
+    out = np.where(valid, root[np.maximum(labels, 0)], -1)
+    _, dense = np.unique(out[valid], return_inverse=True)
+    out[valid] = dense
+    return out

@@ -1,0 +1,152 @@
+"""Scene bounds (an axis-aligned box in metres) derived from the data, never hard-coded.
+
+Two sources, combined when both exist (see :func:`scene_aabb`):
+
+- the cameras: the region that many cameras see (frustum overlap of the views, carved on a coarse grid);
+- the sparse point cloud named by ``ply_file_path`` (robust percentiles of its points).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from fruitnerfpp_ros.errors import DatasetError
+
+__all__ = ['scene_aabb', 'aabb_from_cameras', 'aabb_from_points', 'read_ply_points']
+
+_PLY_TYPES = {'char': 'i1', 'uchar': 'u1', 'int8': 'i1', 'uint8': 'u1', 'short': 'i2', 'ushort': 'u2',
+              'int16': 'i2', 'uint16': 'u2', 'int': 'i4', 'uint': 'u4', 'int32': 'i4', 'uint32': 'u4',
+              'float': 'f4', 'float32': 'f4', 'double': 'f8', 'float64': 'f8'}
+
+
+def read_ply_points(path: str | Path) -> np.ndarray:
+    """Vertex positions [N, 3] float64 of a PLY file (ascii or binary, vertex x/y/z properties).
+
+    Raises:
+        DatasetError: the file is missing or not a PLY with vertex x, y, z.
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise DatasetError(f'{path}: cannot read point cloud: {err}') from err
+    end = raw.find(b'end_header')
+    if not raw.startswith(b'ply') or end < 0:
+        raise DatasetError(f'{path}: not a PLY file')
+    header = raw[:end].decode('ascii', errors='replace').splitlines()
+    body = raw[raw.index(b'\n', end) + 1:]
+    fmt, count, props, in_vertex, before = 'ascii', 0, [], False, 0
+    for line in header:
+        words = line.split()
+        if not words:
+            continue
+        if words[0] == 'format':
+            fmt = words[1]
+        elif words[0] == 'element':
+            in_vertex = words[1] == 'vertex'
+            if in_vertex:
+                count = int(words[2])
+            elif count == 0:
+                before += 1
+        elif words[0] == 'property' and in_vertex:
+            if words[1] == 'list':
+                raise DatasetError(f'{path}: list properties on vertices are not supported')
+            props.append((words[2], _PLY_TYPES.get(words[1], 'f4')))
+    names = [p[0] for p in props]
+    if not {'x', 'y', 'z'} <= set(names) or before:
+        raise DatasetError(f'{path}: expected a first PLY element "vertex" with x, y, z properties')
+    if fmt == 'ascii':
+        rows = body.decode('ascii', errors='replace').split('\n')[:count]
+        try:
+            table = np.array([[float(v) for v in r.split()[:len(props)]] for r in rows], dtype=np.float64)
+        except ValueError as err:
+            raise DatasetError(f'{path}: malformed ASCII vertex data: {err}') from err
+        points = table[:, [names.index('x'), names.index('y'), names.index('z')]] if count else np.zeros((0, 3))
+    else:
+        order = '<' if fmt == 'binary_little_endian' else '>'
+        dtype = np.dtype([(n, order + t) for n, t in props])
+        if len(body) < dtype.itemsize * count:
+            raise DatasetError(f'{path}: truncated PLY vertex data')
+        table = np.frombuffer(body, dtype=dtype, count=count)
+        points = np.stack([table['x'], table['y'], table['z']], axis=1).astype(np.float64)
+    return points[np.all(np.isfinite(points), axis=1)]
+
+
+def aabb_from_points(points: np.ndarray, *, percentile: float = 0.5, padding: float = 0.1) -> np.ndarray:
+    """Box [2, 3] around the ``percentile``..``100-percentile`` range of points, padded by a fraction of its size."""
+    lo = np.percentile(points, percentile, axis=0)
+    hi = np.percentile(points, 100.0 - percentile, axis=0)
+    pad = padding * (hi - lo).max()
+    return np.stack([lo - pad, hi + pad])
+
+
+def aabb_from_cameras(T_world_camera: np.ndarray, intrinsics: np.ndarray, width: int, height: int, *,
+                      min_view_fraction: float = 0.5, grid: int = 48, padding: float = 0.05) -> np.ndarray:
+    """Box [2, 3] of the region seen by at least ``min_view_fraction`` of the cameras.
+
+    Candidate points fill a grid over the cameras' box, grown by the cameras' distance to their common focus
+    (the least-squares point nearest every optical axis); a point counts as seen by a camera when it is in front
+    of it and projects inside its image.
+
+    Args:
+        T_world_camera: [V, 4, 4] camera-to-world, OpenGL axes.
+        intrinsics: [V, 4] fl_x, fl_y, cx, cy in pixels.
+        width: image width in pixels.
+        height: image height in pixels.
+    """
+    T = np.asarray(T_world_camera, dtype=np.float64)
+    K = np.asarray(intrinsics, dtype=np.float64)
+    centres = T[:, :3, 3]
+    axes = -T[:, :3, 2]
+    # Least-squares point nearest every optical axis: sum_i (I - a a^T) (p - c_i) = 0.
+    proj = np.eye(3)[None] - axes[:, :, None] * axes[:, None, :]
+    A = proj.sum(0)
+    b = np.einsum('vij,vj->i', proj, centres)
+    focus = np.linalg.lstsq(A, b, rcond=None)[0] if np.linalg.matrix_rank(A) == 3 else centres.mean(0) + axes.mean(0)
+    reach = np.linalg.norm(centres - focus, axis=1).max()
+    lo = np.minimum(centres.min(0), focus - reach)
+    hi = np.maximum(centres.max(0), focus + reach)
+    ticks = [np.linspace(lo[i], hi[i], grid) for i in range(3)]
+    points = np.stack(np.meshgrid(*ticks, indexing='ij'), -1).reshape(-1, 3)
+    R = T[:, :3, :3]
+    cam = np.einsum('vji,vnj->vni', R, points[None] - centres[:, None])  # world -> camera (R^T (p - c))
+    depth = -cam[..., 2]
+    safe = np.where(depth > 1e-6, depth, 1.0)
+    u = K[:, None, 0] * cam[..., 0] / safe + K[:, None, 2]
+    v = -K[:, None, 1] * cam[..., 1] / safe + K[:, None, 3]
+    seen = (depth > 1e-6) & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
+    keep = seen.mean(0) >= min_view_fraction
+    if not keep.any():
+        keep = seen.mean(0) >= seen.mean(0).max()
+    kept = points[keep]
+    step = (hi - lo) / (grid - 1)
+    box = np.stack([kept.min(0) - step, kept.max(0) + step])
+    pad = padding * (box[1] - box[0]).max()
+    return np.stack([box[0] - pad, box[1] + pad])
+
+
+def scene_aabb(T_world_camera: torch.Tensor | np.ndarray, intrinsics: torch.Tensor | np.ndarray, width: int,
+               height: int, *, ply_path: Path | None = None, min_view_fraction: float = 0.3,
+               padding: float = 0.05, points_growth: float = 2.0) -> np.ndarray:
+    """Scene box [2, 3] (metres, world frame) from the cameras and, when given, the sparse point cloud.
+
+    Cameras: the region seen by at least ``min_view_fraction`` of them (suits inward-looking captures:
+    hemisphere, orbit). Point cloud: its robust 0.5-99.5 percentile extent. With both, the box is their union
+    limited to the point box grown ``points_growth`` times about its centre: it holds the geometry the cameras see
+    around the sparse points (the ground around a tree: left outside, it turns into fog inside the box) without
+    reaching far into space nothing was reconstructed in.
+    """
+    T = T_world_camera.numpy() if isinstance(T_world_camera, torch.Tensor) else np.asarray(T_world_camera)
+    K = intrinsics.numpy() if isinstance(intrinsics, torch.Tensor) else np.asarray(intrinsics)
+    box = aabb_from_cameras(T, K, width, height, min_view_fraction=min_view_fraction, padding=padding)
+    if ply_path is not None:
+        points = read_ply_points(ply_path)
+        if len(points) >= 4:
+            cloud = aabb_from_points(points, padding=padding)
+            centre, half = cloud.mean(0), 0.5 * points_growth * (cloud[1] - cloud[0])
+            union = np.stack([np.minimum(box[0], cloud[0]), np.maximum(box[1], cloud[1])])
+            box = np.stack([np.maximum(union[0], centre - half), np.minimum(union[1], centre + half)])
+    return box.astype(np.float64)

@@ -1,0 +1,177 @@
+"""Load a transforms.json dataset (images, instance/semantic masks, intrinsics, poses) into tensors.
+
+Instance ids are per-image labels (0 = background): nothing here assumes the same fruit has the same id in two
+views. Semantic masks are read when the frames name them, else derived from the instance masks (fruit = id > 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+import torch
+
+from fruitnerfpp_ros.core.data.transforms_format import TransformsFile, read_transforms
+from fruitnerfpp_ros.errors import DatasetError
+
+__all__ = ['SceneDataset', 'load_dataset', 'split_indices']
+
+
+@dataclass(frozen=True)
+class SceneDataset:
+    """All views of a dataset, on the CPU.
+
+    Attributes:
+        dataset_dir: the directory holding ``transforms.json``.
+        images: [V, H, W, 3] float32 RGB in [0, 1].
+        instance_masks: [V, H, W] int32 per-image instance ids, 0 = background.
+        semantic_masks: [V, H, W] bool, True on fruit pixels.
+        intrinsics: [V, 4] float32 (fl_x, fl_y, cx, cy) in pixels, top-left image corner at (0, 0).
+        T_world_camera: [V, 4, 4] float32 camera-to-world poses, OpenGL camera axes, metres.
+        train_indices: [V_train] int64 view indices used for training.
+        eval_indices: [V_eval] int64 held-out view indices.
+        image_paths: relative RGB path of every view (for messages).
+        ply_path: the sparse point cloud named by ``ply_file_path`` when it exists, else None.
+    """
+
+    dataset_dir: Path
+    images: torch.Tensor
+    instance_masks: torch.Tensor
+    semantic_masks: torch.Tensor
+    intrinsics: torch.Tensor
+    T_world_camera: torch.Tensor
+    train_indices: torch.Tensor
+    eval_indices: torch.Tensor
+    image_paths: tuple[str, ...]
+    ply_path: Path | None
+
+    @property
+    def num_views(self) -> int:
+        return int(self.images.shape[0])
+
+    @property
+    def height(self) -> int:
+        return int(self.images.shape[1])
+
+    @property
+    def width(self) -> int:
+        return int(self.images.shape[2])
+
+
+def split_indices(num_views: int, eval_every: int) -> tuple[np.ndarray, np.ndarray]:
+    """Train / held-out view indices: every ``eval_every``-th view (0, n, 2n...) is held out; 0 disables it.
+
+    With fewer than two views nothing is held out.
+    """
+    index = np.arange(num_views)
+    if eval_every <= 0 or num_views < 2:
+        return index, index[:0]
+    held = index % eval_every == 0
+    return index[~held], index[held]
+
+
+def _read_image(path: Path, *, flags: int, what: str) -> np.ndarray:
+    if not path.is_file():
+        raise DatasetError(f'{path}: {what} not found')
+    image = cv2.imread(str(path), flags)
+    if image is None:
+        raise DatasetError(f'{path}: cannot decode {what}')
+    return image
+
+
+def _read_rgb(path: Path) -> np.ndarray:
+    image = _read_image(path, flags=cv2.IMREAD_UNCHANGED, what='image')
+    scale = 65535.0 if image.dtype == np.uint16 else 255.0
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=2)
+    if image.shape[2] == 4:  # composite on white, as nerfstudio does for RGBA
+        alpha = image[..., 3:4].astype(np.float32) / scale
+        rgb = image[..., 2::-1].astype(np.float32) / scale
+        return rgb * alpha + (1.0 - alpha)
+    return image[..., 2::-1].astype(np.float32) / scale
+
+
+def _read_label_mask(path: Path, what: str) -> np.ndarray:
+    mask = _read_image(path, flags=cv2.IMREAD_UNCHANGED, what=what)
+    if mask.ndim == 3:  # colour-coded masks: use the first channel (ids < 256)
+        mask = mask[..., 0]
+    return mask.astype(np.int32)
+
+
+def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instances: bool = True) -> SceneDataset:
+    """Read a transforms.json dataset into tensors.
+
+    Args:
+        dataset_dir: directory holding ``transforms.json``.
+        eval_every: hold out every n-th view for evaluation (0 = none).
+        require_instances: raise when a frame lacks ``instance_path`` (instance training needs them).
+
+    Raises:
+        DatasetError: naming the file, for a missing/undecodable image or mask, an image/mask size mismatch,
+            views of different sizes, a non-finite pose, or a dataset without frames.
+    """
+    dataset_dir = Path(dataset_dir)
+    transforms: TransformsFile = read_transforms(dataset_dir)
+    images, instances, semantics, intrinsics, poses, paths = [], [], [], [], [], []
+    shape: tuple[int, int] | None = None
+    for index, frame in enumerate(transforms.frames):
+        image_path = dataset_dir / frame.file_path
+        if not np.all(np.isfinite(frame.T_world_camera)):
+            raise DatasetError(f'{dataset_dir / "transforms.json"} frame {index} ({frame.file_path}): '
+                               'transform_matrix is not finite')
+        rgb = _read_rgb(image_path)
+        size = rgb.shape[:2]
+        if shape is None:
+            shape = size
+        elif size != shape:
+            raise DatasetError(f'{image_path}: size {size[1]}x{size[0]} differs from the first view\'s '
+                               f'{shape[1]}x{shape[0]}; all views must share one size')
+        cam = transforms.intrinsics_of(index)
+        if (cam.h, cam.w) != size:
+            raise DatasetError(f'{image_path}: image is {size[1]}x{size[0]} but transforms.json says '
+                               f'{cam.w}x{cam.h}')
+        if frame.instance_path is None:
+            if require_instances:
+                raise DatasetError(f'{dataset_dir / "transforms.json"} frame {index} ({frame.file_path}): '
+                                   'no instance_path (instance masks are required for training)')
+            instance = np.zeros(size, np.int32)
+        else:
+            instance = _read_label_mask(dataset_dir / frame.instance_path, 'instance mask')
+            if instance.shape != size:
+                raise DatasetError(f'{dataset_dir / frame.instance_path}: instance mask is '
+                                   f'{instance.shape[1]}x{instance.shape[0]} but image {image_path} is '
+                                   f'{size[1]}x{size[0]}')
+        if frame.semantic_path is not None:
+            semantic = _read_label_mask(dataset_dir / frame.semantic_path, 'semantic mask') > 0
+            if semantic.shape != size:
+                raise DatasetError(f'{dataset_dir / frame.semantic_path}: semantic mask is '
+                                   f'{semantic.shape[1]}x{semantic.shape[0]} but image {image_path} is '
+                                   f'{size[1]}x{size[0]}')
+        else:
+            semantic = instance > 0
+        images.append(rgb)
+        instances.append(instance)
+        semantics.append(semantic)
+        intrinsics.append((cam.fl_x, cam.fl_y, cam.cx, cam.cy))
+        poses.append(frame.T_world_camera)
+        paths.append(frame.file_path)
+    if not images:
+        raise DatasetError(f'{dataset_dir / "transforms.json"}: the dataset has no frames')
+    train, held = split_indices(len(images), eval_every)
+    ply_path = dataset_dir / transforms.ply_file_path if transforms.ply_file_path else None
+    if ply_path is not None and not ply_path.is_file():
+        ply_path = None
+    return SceneDataset(
+        dataset_dir=dataset_dir,
+        images=torch.from_numpy(np.stack(images).astype(np.float32)),
+        instance_masks=torch.from_numpy(np.stack(instances)),
+        semantic_masks=torch.from_numpy(np.stack(semantics)),
+        intrinsics=torch.tensor(intrinsics, dtype=torch.float32),
+        T_world_camera=torch.from_numpy(np.stack(poses).astype(np.float32)),
+        train_indices=torch.from_numpy(train.astype(np.int64)),
+        eval_indices=torch.from_numpy(held.astype(np.int64)),
+        image_paths=tuple(paths),
+        ply_path=ply_path,
+    )

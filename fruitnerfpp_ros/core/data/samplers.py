@@ -1,0 +1,147 @@
+"""Pixel samplers: uniform rays for colour/semantics, groups of neighbouring fruits for the instance field.
+
+Both draw from one ``torch.Generator`` owned by the caller, so a checkpoint of the generator state makes training
+resumable bit for bit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from fruitnerfpp_ros.core.data.rays import PixelBatch
+from fruitnerfpp_ros.errors import DatasetError
+
+__all__ = ['UniformPixelSampler', 'GroupInstanceSampler', 'ViewFruits', 'index_view_fruits']
+
+
+class UniformPixelSampler:
+    """Pixels drawn uniformly over the given views (with replacement).
+
+    With ``fruit_masks`` and ``fruit_fraction > 0``, that fraction of every batch is drawn uniformly from the fruit
+    pixels instead (fruit covers a few percent of an orchard image: without this a batch holds a handful of them).
+    """
+
+    def __init__(self, views: torch.Tensor, height: int, width: int, *, fruit_masks: torch.Tensor | None = None,
+                 fruit_fraction: float = 0.0) -> None:
+        if len(views) == 0:
+            raise DatasetError('no training views to sample rays from')
+        self._views = views.to(torch.int64)
+        self._height = height
+        self._width = width
+        self._fruit_pixels = torch.zeros(0, dtype=torch.int64)
+        if fruit_masks is not None and fruit_fraction > 0:
+            flat = fruit_masks[self._views].reshape(len(self._views), -1)
+            hits = torch.nonzero(flat)  # [M, 2]: (position in views, flat pixel)
+            self._fruit_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
+        self._fruit_fraction = fruit_fraction if len(self._fruit_pixels) else 0.0
+
+    def sample(self, batch_size: int, generator: torch.Generator) -> PixelBatch:
+        n_fruit = int(round(batch_size * self._fruit_fraction))
+        n_uniform = batch_size - n_fruit
+        pick = torch.randint(len(self._views), (n_uniform,), generator=generator)
+        flat = torch.randint(self._height * self._width, (n_uniform,), generator=generator)
+        view, pixel = self._views[pick], flat
+        if n_fruit:
+            chosen = self._fruit_pixels[torch.randint(len(self._fruit_pixels), (n_fruit,), generator=generator)]
+            view = torch.cat([view, chosen // (self._height * self._width)])
+            pixel = torch.cat([pixel, chosen % (self._height * self._width)])
+        return PixelBatch(view, pixel // self._width, pixel % self._width)
+
+
+@dataclass(frozen=True)
+class ViewFruits:
+    """The fruits of one view's instance mask, indexed for fast pixel sampling.
+
+    Attributes:
+        view: view index in the dataset.
+        counts: [F] pixels per fruit.
+        offsets: [F] start of each fruit's pixels in ``pixels``.
+        pixels: [sum(counts)] flat pixel indices (row * W + col), grouped by fruit.
+        neighbours: [F, F] fruit indices sorted by 2D centroid distance (itself first).
+    """
+
+    view: int
+    counts: torch.Tensor
+    offsets: torch.Tensor
+    pixels: torch.Tensor
+    neighbours: torch.Tensor
+
+
+def index_view_fruits(view: int, instance_mask: torch.Tensor, min_pixels: int = 4) -> ViewFruits | None:
+    """Index the fruits (ids > 0 with at least ``min_pixels`` pixels) of one [H, W] instance mask.
+
+    Returns None when the view has fewer than two such fruits (nothing to contrast).
+    """
+    width = instance_mask.shape[1]
+    flat = instance_mask.reshape(-1).to(torch.int64)
+    fg = torch.nonzero(flat > 0).squeeze(1)
+    if len(fg) == 0:
+        return None
+    ids, inverse, counts = torch.unique(flat[fg], return_inverse=True, return_counts=True)
+    big = counts >= min_pixels
+    if int(big.sum()) < 2:
+        return None
+    keep = big[inverse]
+    fg, inverse = fg[keep], inverse[keep]
+    # Number fruits by their first pixel in raster order, not by their id: the sampler then draws exactly the
+    # same pixels whatever labels a segmenter gave (relabelling a view changes nothing).
+    first = torch.full((len(ids),), flat.numel(), dtype=torch.int64).scatter_reduce(0, inverse, fg, 'amin')
+    rank = torch.empty_like(first)
+    kept_ids = torch.nonzero(big).squeeze(1)
+    rank[kept_ids[torch.argsort(first[kept_ids])]] = torch.arange(len(kept_ids))
+    label = rank[inverse]
+    order = torch.argsort(label, stable=True)
+    pixels = fg[order]
+    counts = torch.bincount(label, minlength=int(big.sum()))
+    offsets = torch.cumsum(counts, 0) - counts
+    rows = (fg // width).to(torch.float64)
+    cols = (fg % width).to(torch.float64)
+    n = len(counts)
+    cy = torch.zeros(n, dtype=torch.float64).index_add_(0, label, rows) / counts
+    cx = torch.zeros(n, dtype=torch.float64).index_add_(0, label, cols) / counts
+    centres = torch.stack([cy, cx], 1)
+    dist = torch.cdist(centres, centres)
+    dist.fill_diagonal_(-1.0)
+    neighbours = torch.argsort(dist, dim=1, stable=True)
+    return ViewFruits(view, counts, offsets, pixels, neighbours)
+
+
+class GroupInstanceSampler:
+    """The FruitNeRF++ group sampler: one image per step, G seed fruits each with its L-1 nearest fruits.
+
+    Fruits are compared only within one image (per-image labels). ``P`` pixels are drawn per fruit; background
+    pixels are never returned. Fruits shared by two groups are kept once.
+    """
+
+    def __init__(self, views: torch.Tensor, instance_masks: torch.Tensor, *, groups: int, group_size: int,
+                 pixels_per_fruit: int, min_pixels: int = 4) -> None:
+        self._width = int(instance_masks.shape[2])
+        self._views = [v for v in (index_view_fruits(int(i), instance_masks[int(i)], min_pixels) for i in views)
+                       if v is not None]
+        if not self._views:
+            raise DatasetError('no training view has two or more fruits in its instance mask: '
+                               'cannot train the instance field')
+        self.groups = groups
+        self.group_size = group_size
+        self.pixels_per_fruit = pixels_per_fruit
+
+    @property
+    def num_views(self) -> int:
+        return len(self._views)
+
+    def sample(self, generator: torch.Generator) -> PixelBatch:
+        fruits = self._views[int(torch.randint(len(self._views), (1,), generator=generator))]
+        n = len(fruits.counts)
+        seeds = torch.randperm(n, generator=generator)[:min(self.groups, n)]
+        members = fruits.neighbours[seeds, :min(self.group_size, n)].reshape(-1)
+        chosen = torch.unique(members)  # sorted, duplicates removed
+        f = len(chosen)
+        draws = torch.rand((f, self.pixels_per_fruit), generator=generator, dtype=torch.float64)
+        local = (draws * fruits.counts[chosen, None]).to(torch.int64)
+        flat = fruits.pixels[fruits.offsets[chosen, None] + local].reshape(-1)
+        label = torch.arange(f).repeat_interleave(self.pixels_per_fruit)
+        view = torch.full_like(flat, fruits.view)
+        return PixelBatch(view, flat // self._width, flat % self._width, label)
+

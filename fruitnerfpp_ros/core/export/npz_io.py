@@ -1,0 +1,61 @@
+"""Compact ``.npz`` storage of a fruit point cloud (and optional cluster labels)."""
+
+from __future__ import annotations
+
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+from fruitnerfpp_ros.errors import ExportError
+
+__all__ = ['write_npz', 'read_npz', 'read_cloud']
+
+_KEYS = ('xyz', 'rgb', 'semantic', 'embedding')
+
+
+def write_npz(path: str | Path, cloud: FruitPointCloud, labels: np.ndarray | None = None) -> Path:
+    """Write ``cloud`` (+ optional [N] int32 ``labels``) compressed; atomic. Arrays: xyz, rgb, semantic, embedding."""
+    path = Path(path)
+    arrays = {'xyz': cloud.xyz, 'rgb': cloud.rgb, 'semantic': cloud.semantic, 'embedding': cloud.embedding,
+              'format_version': np.int32(1)}
+    if labels is not None:
+        arrays['labels'] = np.asarray(labels, np.int32)
+    tmp = path.with_name(path.name + '.tmp.npz')
+    np.savez_compressed(tmp, **arrays)
+    tmp.replace(path)
+    return path
+
+
+def read_npz(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
+    """Read a cloud written by :func:`write_npz`; returns (cloud, labels or None).
+
+    Raises:
+        ExportError: missing file, missing arrays or inconsistent shapes.
+    """
+    path = Path(path)
+    try:
+        with np.load(path) as data:
+            missing = [k for k in _KEYS if k not in data]
+            if missing:
+                raise ExportError(f'{path}: missing array(s) {", ".join(missing)}')
+            cloud = FruitPointCloud(*(np.asarray(data[k]) for k in _KEYS))
+            labels = np.asarray(data['labels']) if 'labels' in data else None
+    except FileNotFoundError as err:
+        raise ExportError(f'{path}: point cloud file not found') from err
+    except (zipfile.BadZipFile, ValueError, OSError) as err:
+        raise ExportError(f'{path}: not a readable point cloud .npz: {err}') from err
+    return cloud, labels
+
+
+def read_cloud(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
+    """Read a ``.ply`` or ``.npz`` fruit point cloud by extension."""
+    from fruitnerfpp_ros.core.export.ply import read_ply
+
+    path = Path(path)
+    if path.suffix.lower() == '.ply':
+        return read_ply(path)
+    if path.suffix.lower() == '.npz':
+        return read_npz(path)
+    raise ExportError(f'{path}: unknown point cloud format (expected .ply or .npz)')

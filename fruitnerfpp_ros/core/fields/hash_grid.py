@@ -1,0 +1,96 @@
+"""Multiresolution hash-grid encoding (instant-NGP) in pure PyTorch.
+
+Levels whose ``(res + 1)^3`` vertices fit the table are indexed densely (no collisions); finer levels hash their
+vertices. All levels are looked up in one vectorised gather with trilinear interpolation.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+__all__ = ['HashGridEncoding']
+
+#: instant-NGP hash primes as int32 (multiplication wraps around like the original uint32 arithmetic).
+_PRIMES = (1, 2654435761 - 2 ** 32, 805459861)
+
+
+class HashGridEncoding(nn.Module):
+    """Encode points of the unit cube [0, 1]^3 into ``num_levels * features_per_level`` features.
+
+    Vertex indices are computed per axis and combined by broadcasting (dense levels: ``x + r1 * y + r1^2 * z``;
+    hashed levels: ``x * p0 ^ y * p1 ^ z * p2`` masked to the table size), in int32. The table gradient is the
+    backward of ``index_select`` (an index_add), deterministic on the CPU.
+
+    Args:
+        num_levels: number of resolutions L.
+        features_per_level: features F stored per vertex.
+        log2_table_size: log2 of the table size T per level.
+        base_resolution: coarsest grid resolution.
+        max_resolution: finest grid resolution (geometric progression in between).
+        init_scale: table entries start uniform in [-init_scale, init_scale].
+    """
+
+    def __init__(self, *, num_levels: int = 16, features_per_level: int = 2, log2_table_size: int = 19,
+                 base_resolution: int = 16, max_resolution: int = 2048, init_scale: float = 1e-4) -> None:
+        super().__init__()
+        if log2_table_size > 30:
+            raise ValueError('log2_table_size must be <= 30')
+        self.num_levels = num_levels
+        self.features_per_level = features_per_level
+        self.table_size = 2 ** log2_table_size
+        growth = math.exp((math.log(max_resolution) - math.log(base_resolution)) / max(num_levels - 1, 1))
+        resolutions = [int(math.floor(base_resolution * growth ** i)) for i in range(num_levels)]
+        dense = torch.tensor([(r + 1) ** 3 <= self.table_size for r in resolutions])
+        self.num_dense = int(dense.sum())  # resolutions grow, so the dense levels come first
+        r1 = torch.tensor([r + 1 for r in resolutions], dtype=torch.int32)
+        multipliers = torch.stack([
+            torch.where(dense, torch.ones_like(r1), torch.full_like(r1, _PRIMES[0])),
+            torch.where(dense, r1, torch.full_like(r1, _PRIMES[1])),
+            torch.where(dense, r1 * r1, torch.full_like(r1, _PRIMES[2]))], 0)
+        # Point-last layouts ([..., L, N]) keep the innermost loops long, which matters on the CPU.
+        self.register_buffer('resolutions', torch.tensor(resolutions, dtype=torch.float32)[:, None],
+                             persistent=False)                                                  # [L, 1]
+        self.register_buffer('multipliers', multipliers[:, :, None], persistent=False)        # [3, L, 1] int32
+        self.register_buffer('level_offsets',
+                             (torch.arange(num_levels, dtype=torch.int32) * self.table_size)[:, None],
+                             persistent=False)                                                  # [L, 1]
+        #: [F, L * T]: feature-major, so each feature is one 1-D gather.
+        self.table = nn.Parameter(
+            torch.empty(features_per_level, num_levels * self.table_size).uniform_(-init_scale, init_scale))
+
+    @property
+    def output_dim(self) -> int:
+        return self.num_levels * self.features_per_level
+
+    def vertex_index(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Table indices [8, L, N] (int32, level offsets included) and trilinear weights [8, L, N] of ``x``."""
+        n, nd, levels = x.shape[0], self.num_dense, self.num_levels
+        xt = x.clamp(0.0, 1.0).to(torch.float32).T.contiguous()                         # [3, N]
+        scaled = xt[:, None, :] * self.resolutions[None]                                # [3, L, N]
+        floor = torch.floor(scaled)
+        frac = scaled - floor
+        low = floor.to(torch.int32) * self.multipliers
+        ax, ay, az = torch.stack([low, low + self.multipliers], 1).unbind(0)           # [2, L, N] each
+        parts = []
+        if nd:
+            dense = ax[:, None, None, :nd] + ay[None, :, None, :nd] + az[None, None, :, :nd]
+            parts.append(dense.reshape(8, nd, n))
+        if nd < levels:
+            hashed = ax[:, None, None, nd:] ^ ay[None, :, None, nd:] ^ az[None, None, :, nd:]
+            parts.append((hashed & (self.table_size - 1)).reshape(8, levels - nd, n))
+        index = (torch.cat(parts, 1) if len(parts) > 1 else parts[0]) + self.level_offsets
+        wx, wy, wz = torch.stack([1.0 - frac, frac], 1).unbind(0)                       # [2, L, N] each
+        weights = (wx[:, None, None] * wy[None, :, None] * wz[None, None, :]).reshape(8, levels, n)
+        return index, weights
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """Features [N, L * F] (level-major) of points ``x`` [N, 3] in [0, 1]^3 (values outside are clamped)."""
+        n = x.shape[0]
+        index, weights = self.vertex_index(x)
+        flat = index.reshape(-1)
+        features = [(self.table[f].index_select(0, flat).view(index.shape) * weights).sum(0)
+                    for f in range(self.features_per_level)]                            # F x [L, N]
+        return torch.stack(features, -1).permute(1, 0, 2).reshape(n, self.output_dim)

@@ -1,0 +1,127 @@
+"""Render colour, fruit probability and instance embeddings of rays with one set of volume-rendering weights."""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Callable, NamedTuple
+
+import torch
+
+from fruitnerfpp_ros.core.data.rays import RayBundle
+from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
+from fruitnerfpp_ros.core.rendering.marching import RaySamples, march_rays
+from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
+from fruitnerfpp_ros.core.rendering.volume import accumulation, composite, distortion, render_weights
+
+__all__ = ['RenderOutput', 'RenderSettings', 'render_rays', 'autocast_for']
+
+GeometryFn = Callable[[torch.Tensor], GeometryOutput]
+
+
+class RenderSettings(NamedTuple):
+    """How rays are marched.
+
+    Attributes:
+        step: sample spacing, metres.
+        near: minimum distance from the camera, metres.
+        mixed_precision: bfloat16 autocast of the field on CUDA.
+        weight_threshold: instance head evaluated only where the render weight exceeds this.
+        stop_transmittance: samples behind the point where a ray's transmittance (from a first, gradient-free
+            density pass) falls below this are dropped before the differentiable pass; 0 disables it.
+    """
+
+    step: float
+    near: float
+    mixed_precision: bool = False
+    weight_threshold: float = 1e-4
+    stop_transmittance: float = 1e-3
+
+
+class RenderOutput(NamedTuple):
+    """Per-ray results.
+
+    Attributes:
+        rgb: [N, 3] colour in [0, 1] (background colour blended in where the ray stays transparent).
+        opacity: [N] accumulated weight in [0, 1].
+        fruit_prob: [N] rendered fruit probability (sum of weight * sigmoid(logit)), or None.
+        embedding: [N, D] rendered instance embedding (not normalised), or None.
+        num_samples: samples evaluated by the field.
+        distortion: mean distortion loss of the colour weights (metres; differentiable), or None.
+    """
+
+    rgb: torch.Tensor | None
+    opacity: torch.Tensor
+    fruit_prob: torch.Tensor | None
+    embedding: torch.Tensor | None
+    num_samples: int
+    distortion: torch.Tensor | None = None
+
+
+def autocast_for(device: torch.device, enabled: bool) -> contextlib.AbstractContextManager:
+    """bfloat16 autocast on CUDA when ``enabled``; a no-op elsewhere."""
+    if enabled and device.type == 'cuda':
+        return torch.autocast('cuda', dtype=torch.bfloat16)
+    return contextlib.nullcontext()
+
+
+def _early_terminated(samples: RaySamples, geometry: GeometryFn, stop_transmittance: float) -> RaySamples:
+    """The samples in front of where each ray becomes opaque (transmittance < ``stop_transmittance``)."""
+    with torch.no_grad():
+        weights = render_weights(samples, geometry(samples.positions).density)
+        # transmittance before sample k = 1 - (accumulated weight before k)
+        before = torch.zeros(samples.num_rays * samples.max_samples, device=weights.device, dtype=weights.dtype)
+        before = before.index_put((samples.slot,), weights).view(samples.num_rays, samples.max_samples)
+        before = (torch.cumsum(before, dim=1) - before).reshape(-1)[samples.slot]
+        keep = torch.nonzero(1.0 - before > stop_transmittance).squeeze(1)
+    return RaySamples(samples.positions[keep], samples.directions[keep], samples.ray_index[keep], samples.slot[keep],
+                      samples.num_rays, samples.max_samples, samples.step)
+
+
+def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, settings: RenderSettings, *,
+                jitter: torch.Tensor | None = None, colour: bool = True, semantic: bool = False,
+                instance: bool = False, geometry_fn: GeometryFn | None = None) -> RenderOutput:
+    """Volume-render ``rays`` through the field.
+
+    Gradients: colour/opacity reach density and colour; the fruit probability and the embedding are composited
+    with **detached** weights from detached features, so they only train their own heads. When only the
+    instance head is wanted (``colour=False, semantic=False``), density is evaluated without autograd and the
+    instance head only at samples whose weight exceeds ``settings.weight_threshold``.
+
+    Args:
+        field: the neural field.
+        grid: occupancy grid for empty-space skipping.
+        rays: N rays.
+        settings: marching parameters.
+        jitter: [N] first-sample offsets in [0, 1) (training), None for deterministic mid-step samples.
+        colour, semantic, instance: which quantities to render.
+        geometry_fn: replacement for ``field.geometry`` (e.g. a compiled version).
+    """
+    geometry = geometry_fn or field.geometry
+    device = rays.origins.device
+    samples: RaySamples = march_rays(rays, grid, settings.step, near=settings.near, jitter=jitter)
+    with autocast_for(device, settings.mixed_precision):
+        if settings.stop_transmittance > 0 and (colour or semantic) and torch.is_grad_enabled():
+            samples = _early_terminated(samples, geometry, settings.stop_transmittance)
+        needs_graph = (colour or semantic) and torch.is_grad_enabled()
+        with torch.set_grad_enabled(needs_graph):
+            geo = geometry(samples.positions)
+            weights = render_weights(samples, geo.density)
+        rgb = fruit_prob = embedding = dist = None
+        if colour:
+            if torch.is_grad_enabled():
+                dist = distortion(samples, weights)
+            values = field.rgb(geo.features, samples.directions)
+            opacity = accumulation(samples, weights)
+            rgb = composite(samples, weights, values) + (1.0 - opacity[:, None]) * field.background_rgb(rays.directions)
+        else:
+            opacity = accumulation(samples, weights.detach())
+        if semantic:
+            prob = torch.sigmoid(field.fruit_logit(samples.positions, geo.features))
+            fruit_prob = composite(samples, weights.detach(), prob[:, None])[:, 0]
+        if instance:
+            w = weights.detach()
+            keep = torch.nonzero(w > settings.weight_threshold).squeeze(1)
+            emb = field.embedding(samples.positions[keep], geo.features.detach()[keep])
+            out = emb.new_zeros(samples.num_rays, emb.shape[1])
+            embedding = out.index_add(0, samples.ray_index[keep], w[keep, None] * emb)
+    return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist)

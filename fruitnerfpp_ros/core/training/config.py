@@ -1,0 +1,210 @@
+"""TrainConfig: every hyper-parameter of cascaded training in one typed, frozen, YAML-loadable config.
+
+Presets: ``tiny`` (CPU tests, 96 px scenes in about a minute), ``default`` (GPU), ``paper`` (the paper's long
+schedule). ``config/train_<preset>.yaml`` hold the same values as YAML.
+
+Density scale (for the export): densities are in 1/m. A sample of thickness ``render.step`` metres is half
+opaque when ``density >= ln 2 / step``: the ``surface_density`` method gives that value for a box, ~34/m for the
+tiny preset on the 96 px apple scene. ``TrainedScene.surface_density`` (used by the export) takes the smaller of
+it and the 90th percentile of the trained occupancy grid's densities (~2/m for the tiny run). Fields trained briefly stay
+semi-transparent: the tiny CPU run measures a median density of ~0.25/m (90th percentile ~1.4/m) at random points
+of the box and ~2.4/m median, ~30/m max on the GT fruit surfaces, so export thresholds for tiny runs should sit
+near 2-5/m (or a multiple of the box median), with fruit_prob >= 0.9 doing most of the selection.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from dataclasses import field as _field
+
+from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig
+from fruitnerfpp_ros.errors import ConfigError
+
+__all__ = ['TrainConfig', 'DataConfig', 'RenderConfig', 'GeometryStageConfig', 'SemanticStageConfig',
+           'InstanceStageConfig', 'FieldConfig', 'PRESET_NAMES']
+
+PRESET_NAMES = ('tiny', 'default', 'paper')
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """How the dataset is split and bounded."""
+
+    eval_every: int = 8
+    """Hold out every n-th view (views 0, n, 2n...) for evaluation; 0 = no held-out views."""
+    aabb: tuple[float, ...] | None = None
+    """Optional explicit scene box (xmin, ymin, zmin, xmax, ymax, zmax) in metres; None = derived from the
+    cameras and the sparse point cloud (the normal case)."""
+    min_view_fraction: float = 0.3
+    """A region belongs to the camera-derived box when at least this fraction of the cameras sees it."""
+    points_growth: float = 2.0
+    """With a sparse point cloud, the box may reach this many times the cloud's extent (about its centre) to hold
+    what the cameras see around it."""
+    aabb_padding: float = 0.05
+    """Derived box grown by this fraction of its largest side on every face."""
+    min_fruit_pixels: int = 4
+    """Fruit masks with fewer pixels are ignored by the group sampler."""
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """Ray marching and empty-space skipping."""
+
+    samples_per_ray: int = 256
+    """Step = box diagonal / samples_per_ray (metres)."""
+    near: float = 0.05
+    """Minimum sample distance from the camera, metres."""
+    occupancy_resolution: int = 128
+    """Occupancy grid cells per axis."""
+    occupancy_threshold: float = 0.01
+    """Optical thickness (density * step) above which an occupancy cell is occupied."""
+    occupancy_decay: float = 0.95
+    """Decay of the occupancy values per update."""
+    occupancy_update_every: int = 16
+    """Training steps between occupancy updates (stages 1 and 2)."""
+    chunk_rays: int = 8192
+    """Rays per chunk when rendering whole images for evaluation."""
+    mixed_precision: bool = True
+    """bfloat16 autocast for the field on CUDA (ignored on the CPU)."""
+    compile: bool = True
+    """torch.compile the field's MLP heads on CUDA (ignored on the CPU or when unavailable)."""
+
+    def step_size(self, aabb_diagonal: float) -> float:
+        """Ray-marching step in metres for a box of the given diagonal."""
+        return aabb_diagonal / self.samples_per_ray
+
+
+@dataclass(frozen=True)
+class GeometryStageConfig:
+    """Stage 1: density + colour, uniform rays."""
+
+    iterations: int = 5000
+    """Training steps."""
+    batch_rays: int = 4096
+    """Rays per step."""
+    lr: float = 1e-2
+    """Adam learning rate (decays exponentially to lr * lr_final_factor)."""
+    lr_final_factor: float = 0.1
+    """Learning rate at the last step, as a fraction of ``lr``."""
+    distortion_weight: float = 0.01
+    """Weight of the distortion loss (1/m): pulls each ray's weight together, against floaters and fog."""
+
+
+@dataclass(frozen=True)
+class SemanticStageConfig:
+    """Stage 2: + fruit semantics, uniform rays, density and colour keep training."""
+
+    iterations: int = 2000
+    """Training steps."""
+    batch_rays: int = 4096
+    """Rays per step."""
+    lr: float = 1e-2
+    """Adam learning rate of the semantic head (density and colour continue at stage 1's final rate)."""
+    lr_final_factor: float = 0.1
+    """Learning rate at the last step, as a fraction of ``lr``."""
+    semantic_weight: float = 1.0
+    """lambda_sem, the weight of the BCE loss."""
+    fruit_fraction: float = 0.25
+    """Fraction of each batch drawn from fruit pixels (the rest uniformly): fruit is a few percent of an image."""
+
+
+@dataclass(frozen=True)
+class InstanceStageConfig:
+    """Stage 3: instance field only (everything else frozen), group sampler, prototype InfoNCE."""
+
+    iterations: int = 3000
+    """Training steps."""
+    groups: int = 4
+    """G, seed fruits per step."""
+    group_size: int = 8
+    """L, fruits per group (the seed and its L-1 nearest fruits in the image)."""
+    pixels_per_fruit: int = 32
+    """P, pixels sampled per fruit."""
+    temperature: float = 0.2
+    """tau of the InfoNCE loss (feasible 0.1-0.3)."""
+    lr: float = 1e-2
+    """Adam learning rate (decays exponentially to lr * lr_final_factor)."""
+    lr_final_factor: float = 0.1
+    """Learning rate at the last step, as a fraction of ``lr``."""
+    weight_threshold: float = 1e-4
+    """Samples with a render weight below this are skipped by the instance head."""
+    contrastive_weight: float = 1.0
+    """lambda_contr, the weight of the contrastive loss."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Cascaded FruitNeRF++ training: data, field, rendering, three stages, bookkeeping."""
+
+    data: DataConfig = _field(default_factory=DataConfig)
+    """Dataset split and scene box."""
+    field: FieldConfig = _field(default_factory=FieldConfig)
+    """Field encodings and heads."""
+    render: RenderConfig = _field(default_factory=RenderConfig)
+    """Ray marching and occupancy grid."""
+    geometry: GeometryStageConfig = _field(default_factory=GeometryStageConfig)
+    """Stage 1."""
+    semantic: SemanticStageConfig = _field(default_factory=SemanticStageConfig)
+    """Stage 2."""
+    instance: InstanceStageConfig = _field(default_factory=InstanceStageConfig)
+    """Stage 3."""
+    seed: int = 0
+    """Seed of every random source (weights, samplers, jitter)."""
+    checkpoint_every: int = 500
+    """Steps between periodic checkpoints (a killed run loses at most this many steps)."""
+    log_every: int = 50
+    """Steps between lines of metrics.jsonl."""
+    eval_max_views: int = 8
+    """Held-out views rendered for the stage-end evaluation (the first n)."""
+    cpu_threads: int = 1
+    """torch CPU threads while training on the CPU (0 = keep torch's setting). One thread is the fast choice for
+    these small batches: with more, OpenMP barriers collapse when other processes share the cores."""
+
+    def __post_init__(self) -> None:
+        for name in ('geometry', 'semantic', 'instance'):
+            if getattr(self, name).iterations < 0:
+                raise ConfigError(f'{name}.iterations must be >= 0')
+        if self.checkpoint_every <= 0 or self.log_every <= 0:
+            raise ConfigError('checkpoint_every and log_every must be positive')
+        if self.data.aabb is not None and len(self.data.aabb) != 6:
+            raise ConfigError('data.aabb needs 6 numbers: xmin ymin zmin xmax ymax zmax')
+
+    def surface_density(self, aabb_diagonal: float) -> float:
+        """Density (1/m) at which one ray-marching step is half opaque: a surface / empty-space threshold."""
+        return math.log(2.0) / self.render.step_size(aabb_diagonal)
+
+    @classmethod
+    def preset(cls, name: str) -> 'TrainConfig':
+        """The named preset: ``tiny`` (CPU tests), ``default`` (GPU, minutes) or ``paper`` (long schedule)."""
+        if name == 'default':
+            return cls()
+        if name == 'tiny':
+            return cls(
+                # A coarse geometry grid (6 levels up to 128 over the box) overfits 21 views of 96 px less than a
+                # finer one: held-out PSNR, semantic IoU and the count all improved (docs/results/tiny_preset.md).
+                field=FieldConfig(num_levels=6, features_per_level=2, log2_table_size=15, base_resolution=8,
+                                  max_resolution=128, hidden_dim=32, density_layers=1, color_layers=1, sh_degree=2,
+                                  semantic_layers=1, semantic_num_levels=6, semantic_log2_table_size=15,
+                                  semantic_base_resolution=8, semantic_max_resolution=256, embedding_dim=32,
+                                  instance_num_levels=6, instance_log2_table_size=15, instance_base_resolution=8,
+                                  instance_max_resolution=256, instance_hidden_dim=32, instance_layers=1),
+                render=RenderConfig(samples_per_ray=192, occupancy_resolution=48, occupancy_update_every=8,
+                                    chunk_rays=4096),
+                geometry=GeometryStageConfig(iterations=600, batch_rays=640, lr=2e-2),
+                semantic=SemanticStageConfig(iterations=200, batch_rays=512, lr=5e-2, fruit_fraction=0.5),
+                instance=InstanceStageConfig(iterations=600, groups=4, group_size=8, pixels_per_fruit=24, lr=3e-2),
+                checkpoint_every=100, log_every=25, eval_max_views=3)
+        if name == 'paper':
+            return cls(
+                geometry=GeometryStageConfig(iterations=30000, batch_rays=4096, lr=1e-2),
+                semantic=SemanticStageConfig(iterations=10000, batch_rays=4096, lr=1e-2),
+                instance=InstanceStageConfig(iterations=20000, groups=8, group_size=8, pixels_per_fruit=32),
+                render=RenderConfig(samples_per_ray=512),
+                checkpoint_every=2000, log_every=100)
+        raise ConfigError(f'unknown training preset {name!r}; expected one of {", ".join(PRESET_NAMES)}')
+
+    def replace(self, **changes: object) -> 'TrainConfig':
+        """Copy with top-level fields replaced (nested configs: use config_io.replace_nested)."""
+        return dataclasses.replace(self, **changes)  # type: ignore[arg-type]

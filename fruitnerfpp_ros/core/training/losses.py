@@ -1,0 +1,42 @@
+"""Training losses: photometric MSE, fruit BCE, and the prototype InfoNCE of FruitNeRF++."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+__all__ = ['photometric_loss', 'semantic_loss', 'prototype_infonce', 'fruit_prototypes']
+
+
+def photometric_loss(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean squared error between rendered and true colours, both [N, 3] in [0, 1]."""
+    return torch.mean((rgb.float() - target.float()) ** 2)
+
+
+def semantic_loss(fruit_prob: torch.Tensor, is_fruit: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy of rendered fruit probabilities [N] in [0, 1] against fruit masks [N] (bool)."""
+    prob = fruit_prob.float().clamp(1e-5, 1.0 - 1e-5)
+    return F.binary_cross_entropy(prob, is_fruit.float())
+
+
+def fruit_prototypes(embeddings: torch.Tensor, labels: torch.Tensor, num_fruits: int) -> torch.Tensor:
+    """Unit-length mean embedding [F, D] per fruit label from L2-normalised ``embeddings`` [N, D]."""
+    sums = embeddings.new_zeros(num_fruits, embeddings.shape[1]).index_add(0, labels, embeddings)
+    return F.normalize(sums, dim=-1)
+
+
+def prototype_infonce(embeddings: torch.Tensor, labels: torch.Tensor, temperature: float) -> torch.Tensor:
+    """Prototype InfoNCE: each pixel against the mean embeddings of every fruit of the batch.
+
+    L_j = -log( exp(<i_j, F_a(j)> / tau) / sum_a' exp(<i_j, F_a'> / tau) ), averaged over the pixels.
+
+    Args:
+        embeddings: [N, D] rendered embeddings (normalised here).
+        labels: [N] int64 batch-local fruit label in 0..F-1 (background pixels never enter).
+        temperature: tau.
+    """
+    unit = F.normalize(embeddings.float(), dim=-1)
+    num_fruits = int(labels.max()) + 1
+    prototypes = fruit_prototypes(unit, labels, num_fruits)
+    logits = unit @ prototypes.T / temperature
+    return F.cross_entropy(logits, labels)

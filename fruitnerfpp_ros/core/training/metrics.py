@@ -1,0 +1,115 @@
+"""Held-out evaluation: PSNR, semantic IoU and instance assignment accuracy."""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import torch
+import torch.nn.functional as F
+
+from fruitnerfpp_ros.core.data.dataset import SceneDataset
+from fruitnerfpp_ros.core.data.rays import rays_for_pixels
+from fruitnerfpp_ros.core.fields.fruit_field import FruitField
+from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
+from fruitnerfpp_ros.core.rendering.renderer import RenderOutput, RenderSettings, render_rays
+
+__all__ = ['EvalMetrics', 'ViewRender', 'psnr_from_mse', 'semantic_iou', 'instance_assignment_accuracy',
+           'render_view', 'evaluate_views']
+
+
+class EvalMetrics(NamedTuple):
+    """Figures over held-out views (NaN when not computable, e.g. no held-out view).
+
+    Attributes:
+        psnr: dB of the rendered colour vs the image over all pixels.
+        semantic_iou: IoU of (rendered fruit probability > 0.5) vs the fruit mask.
+        instance_acc: fraction of GT fruit pixels whose embedding is nearest (cosine) to their own fruit's
+            prototype, prototypes being mean embeddings per GT fruit of that view.
+        num_views: views evaluated.
+    """
+
+    psnr: float
+    semantic_iou: float
+    instance_acc: float
+    num_views: int
+
+
+class ViewRender(NamedTuple):
+    """A whole rendered view: rgb [H, W, 3], fruit_prob [H, W], embedding [H, W, D] (normalised)."""
+
+    rgb: torch.Tensor
+    fruit_prob: torch.Tensor
+    embedding: torch.Tensor
+
+
+def psnr_from_mse(mse: float) -> float:
+    """Peak signal-to-noise ratio in dB for colours in [0, 1]."""
+    return -10.0 * math.log10(max(mse, 1e-12))
+
+
+def semantic_iou(fruit_prob: torch.Tensor, is_fruit: torch.Tensor, threshold: float = 0.5) -> tuple[int, int]:
+    """(intersection, union) pixel counts of the thresholded probability and the mask."""
+    pred = fruit_prob > threshold
+    return int((pred & is_fruit).sum()), int((pred | is_fruit).sum())
+
+
+def instance_assignment_accuracy(embedding: torch.Tensor, instance_mask: torch.Tensor) -> tuple[int, int]:
+    """(correct, total) fruit pixels of one view assigned to their own GT fruit's prototype.
+
+    Args:
+        embedding: [P, D] normalised embeddings of the view's pixels.
+        instance_mask: [P] per-image instance ids, 0 = background.
+    """
+    fruit = instance_mask > 0
+    if int(fruit.sum()) == 0:
+        return 0, 0
+    ids, labels = torch.unique(instance_mask[fruit], return_inverse=True)
+    emb = embedding[fruit].float()
+    sums = emb.new_zeros(len(ids), emb.shape[1]).index_add(0, labels, emb)
+    prototypes = F.normalize(sums, dim=-1)
+    nearest = torch.argmax(emb @ prototypes.T, dim=1)
+    return int((nearest == labels).sum()), int(len(labels))
+
+
+@torch.no_grad()
+def render_view(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, view: int, settings: RenderSettings,
+                chunk_rays: int) -> ViewRender:
+    """Render every pixel of dataset view ``view`` (chunked)."""
+    device = grid.aabb.device
+    h, w = dataset.height, dataset.width
+    flat = torch.arange(h * w, device=device)
+    views = torch.full_like(flat, view)
+    poses = dataset.T_world_camera.to(device)
+    intrinsics = dataset.intrinsics.to(device)
+    outs: list[RenderOutput] = []
+    for start in range(0, h * w, chunk_rays):
+        part = flat[start:start + chunk_rays]
+        rays = rays_for_pixels(poses, intrinsics, views[start:start + chunk_rays], part // w, part % w)
+        outs.append(render_rays(field, grid, rays, settings, semantic=True, instance=True))
+    rgb = torch.cat([o.rgb for o in outs]).reshape(h, w, 3)
+    prob = torch.cat([o.fruit_prob for o in outs]).reshape(h, w)
+    emb = F.normalize(torch.cat([o.embedding for o in outs]), dim=-1).reshape(h, w, -1)
+    return ViewRender(rgb, prob, emb)
+
+
+@torch.no_grad()
+def evaluate_views(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, views: list[int],
+                   settings: RenderSettings, chunk_rays: int) -> EvalMetrics:
+    """PSNR, semantic IoU and instance assignment accuracy over ``views`` (typically the held-out ones)."""
+    if not views:
+        nan = float('nan')
+        return EvalMetrics(nan, nan, nan, 0)
+    sq_err, pixels, inter, union, correct, total = 0.0, 0, 0, 0, 0, 0
+    for view in views:
+        out = render_view(field, grid, dataset, view, settings, chunk_rays)
+        image = dataset.images[view].to(out.rgb.device)
+        sq_err += float(((out.rgb - image) ** 2).sum()) / 3.0
+        pixels += image.shape[0] * image.shape[1]
+        i, u = semantic_iou(out.fruit_prob, dataset.semantic_masks[view].to(out.rgb.device))
+        inter, union = inter + i, union + u
+        c, t = instance_assignment_accuracy(out.embedding.reshape(-1, out.embedding.shape[-1]),
+                                            dataset.instance_masks[view].reshape(-1).to(out.rgb.device))
+        correct, total = correct + c, total + t
+    return EvalMetrics(psnr_from_mse(sq_err / pixels), inter / union if union else float('nan'),
+                       correct / total if total else float('nan'), len(views))

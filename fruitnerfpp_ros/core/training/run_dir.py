@@ -1,0 +1,59 @@
+"""The training run directory: resolved config, checkpoints and the metrics log."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+__all__ = ['RunDir']
+
+
+class RunDir:
+    """Paths and logs of one training run::
+
+        RUN_DIR/config.yaml          resolved TrainConfig
+        RUN_DIR/checkpoints/latest.pt  last periodic or stage-end checkpoint
+        RUN_DIR/metrics.jsonl        one JSON object per logging step / stage-end evaluation
+    """
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    @property
+    def config_path(self) -> Path:
+        return self.root / 'config.yaml'
+
+    @property
+    def checkpoint_dir(self) -> Path:
+        return self.root / 'checkpoints'
+
+    @property
+    def latest_checkpoint(self) -> Path:
+        return self.checkpoint_dir / 'latest.pt'
+
+    @property
+    def metrics_path(self) -> Path:
+        return self.root / 'metrics.jsonl'
+
+    def create(self) -> None:
+        self.checkpoint_dir.mkdir(parents=True, exist_ok=True)
+
+    def append_metrics(self, record: dict[str, Any]) -> None:
+        """Append one JSON line (non-finite floats written as null)."""
+        clean = {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in record.items()}
+        with open(self.metrics_path, 'a') as f:
+            f.write(json.dumps(clean) + '\n')
+
+    def read_metrics(self) -> list[dict[str, Any]]:
+        if not self.metrics_path.is_file():
+            return []
+        return [json.loads(line) for line in self.metrics_path.read_text().splitlines() if line.strip()]
+
+    def truncate_metrics(self, keep_until_global_step: int) -> None:
+        """Drop lines logged after ``keep_until_global_step`` (on resume, so no step is logged twice)."""
+        lines = [r for r in self.read_metrics() if r.get('global_step', 0) <= keep_until_global_step]
+        tmp = self.metrics_path.with_name(self.metrics_path.name + '.tmp')
+        tmp.write_text(''.join(json.dumps(r) + '\n' for r in lines))
+        tmp.replace(self.metrics_path)

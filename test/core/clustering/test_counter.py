@@ -1,0 +1,123 @@
+"""count_fruits on synthetic fruit clouds with known instances."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from sklearn.metrics import adjusted_rand_score
+
+from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.counter import count_fruits
+from fruitnerfpp_ros.core.clustering.partitions import make_partitions
+from fruitnerfpp_ros.core.clustering.synthetic_cloud import make_fruit_cloud
+from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+from fruitnerfpp_ros.errors import ClusteringError, ConfigError
+
+
+def _center_errors(result, centers: np.ndarray) -> np.ndarray:
+    found = result.centers()
+    return np.linalg.norm(found[:, None, :] - centers[None, :, :], axis=-1).min(axis=1)
+
+
+def test_separated_fruits_counted_with_centres_and_diameters() -> None:
+    synth = make_fruit_cloud(6000, 24, seed=3)
+    result = count_fruits(synth.cloud, ClusterConfig(n_jobs=1))
+    assert result.count == 24
+    assert adjusted_rand_score(synth.labels, result.labels) > 0.99
+    assert [f.id for f in result.fruits] == list(range(1, 25))
+    assert set(np.unique(result.labels)) <= set(range(0, 25))
+    assert _center_errors(result, synth.centers).max() < 0.01  # median of a shell sits at its centre (m)
+    diameters = np.array([f.diameter_m for f in result.fruits])
+    assert np.all(np.abs(diameters - 2 * synth.radius_m) < 0.015)
+    assert sum(f.n_points for f in result.fruits) == np.count_nonzero(result.labels)
+
+
+def test_touching_fruits_need_the_embedding_term() -> None:
+    """Groups of three overlapping fruits: one blob in space, three fruits by embedding."""
+    synth = make_fruit_cloud(6000, 24, touching=True, seed=4)
+    combined = count_fruits(synth.cloud, ClusterConfig(n_jobs=1))
+    euclidean_only = count_fruits(synth.cloud, ClusterConfig(lambda_c=0.0, n_jobs=1))
+    assert combined.count == 24
+    assert adjusted_rand_score(synth.labels, combined.labels) > 0.95
+    assert euclidean_only.count <= 12  # the groups of three merge
+    assert adjusted_rand_score(synth.labels, euclidean_only.labels) < 0.7
+
+
+def test_fruit_straddling_a_partition_boundary_is_counted_once() -> None:
+    synth = make_fruit_cloud(8000, 27, seed=5)
+    config = ClusterConfig(partitions=4, n_jobs=1)
+    parts = make_partitions(synth.cloud.xyz, 4, overlap_m=config.overlap_m, seed=config.seed)
+    owners_per_fruit = [len(np.unique(parts.owner[synth.labels == f])) for f in range(27)]
+    assert max(owners_per_fruit) > 1, 'scene must have a fruit cut by a partition boundary'
+    result = count_fruits(synth.cloud, config)
+    assert result.count == 27
+    assert adjusted_rand_score(synth.labels, result.labels) > 0.99
+    # without overlap the cut fruits are counted twice: the mechanism matters
+    no_overlap = count_fruits(synth.cloud, ClusterConfig(partitions=4, overlap_m=0.0, n_jobs=1,
+                                                         min_cluster_size=5, min_fruit_points=5))
+    assert no_overlap.count > 27
+
+
+def test_subsample_and_assign_matches_full_clustering() -> None:
+    synth = make_fruit_cloud(12000, 30, touching=True, seed=6)
+    result = count_fruits(synth.cloud, ClusterConfig(subsample_size=3000, n_jobs=1))
+    assert result.stats['n_clustered'] == 3000
+    assert result.count == 30
+    assert adjusted_rand_score(synth.labels, result.labels) > 0.95
+
+
+def test_parallel_partitions_give_the_serial_result() -> None:
+    synth = make_fruit_cloud(6000, 24, seed=7)
+    serial = count_fruits(synth.cloud, ClusterConfig(partitions=2, n_jobs=1))
+    parallel = count_fruits(synth.cloud, ClusterConfig(partitions=2, n_jobs=2, parallel_min_points=1000))
+    assert parallel.stats['parallel_jobs'] == 2, parallel.stats.get('parallel_error')
+    assert parallel.count == serial.count == 24
+    assert np.array_equal(parallel.labels, serial.labels)
+
+
+def test_concatenated_metric_is_available_as_an_option() -> None:
+    synth = make_fruit_cloud(4000, 16, seed=8)
+    result = count_fruits(synth.cloud, ClusterConfig(metric='concatenated', n_jobs=1))
+    assert result.stats['metric'] == 'concatenated'
+    assert result.count == 16
+
+
+def test_clutter_creates_no_fruit_and_small_clusters_are_dropped() -> None:
+    synth = make_fruit_cloud(5000, 16, clutter_fraction=0.02, seed=9)
+    result = count_fruits(synth.cloud, ClusterConfig(n_jobs=1))
+    assert result.count == 16
+    assert _center_errors(result, synth.centers).max() < 0.01
+    strict = count_fruits(synth.cloud, ClusterConfig(n_jobs=1, min_fruit_points=10_000))
+    assert strict.count == 0 and np.all(strict.labels == 0)
+
+
+def test_empty_cloud_counts_zero() -> None:
+    result = count_fruits(FruitPointCloud.empty(32))
+    assert result.count == 0
+    assert result.labels.shape == (0,)
+    assert 'empty' in result.stats['note']
+
+
+def test_tiny_cloud_is_all_noise_not_a_crash() -> None:
+    synth = make_fruit_cloud(40, 4, seed=1)
+    result = count_fruits(synth.cloud.subset(np.arange(5)), ClusterConfig(n_jobs=1))
+    assert result.count == 0
+    assert np.all(result.labels == 0)
+
+
+def test_bad_cloud_raises_clustering_error() -> None:
+    synth = make_fruit_cloud(200, 2, seed=1)
+    xyz = synth.cloud.xyz.copy()
+    xyz[3] = np.nan
+    bad = FruitPointCloud(xyz, synth.cloud.rgb, synth.cloud.semantic, synth.cloud.embedding)
+    with pytest.raises(ClusteringError, match='NaN'):
+        count_fruits(bad)
+    with pytest.raises(ClusteringError, match='FruitPointCloud'):
+        count_fruits(xyz)  # type: ignore[arg-type]
+
+
+def test_config_rejects_impossible_values() -> None:
+    with pytest.raises(ConfigError, match='lambda_e'):
+        ClusterConfig(lambda_e=0.0)
+    with pytest.raises(ConfigError, match='min_samples'):
+        ClusterConfig(min_samples=50, knn_k=10)

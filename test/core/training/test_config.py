@@ -1,0 +1,42 @@
+"""TrainConfig presets, YAML files and the train CLI's config handling."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fruitnerfpp_ros.cli.main import main
+from fruitnerfpp_ros.cli.train import resolve_train_config
+from fruitnerfpp_ros.core.config_io import load_config
+from fruitnerfpp_ros.core.training import PRESET_NAMES, TrainConfig
+from fruitnerfpp_ros.errors import ConfigError
+
+CONFIG_DIR = Path(__file__).resolve().parents[3] / 'config'
+
+
+@pytest.mark.parametrize('name', PRESET_NAMES)
+def test_yaml_presets_match_python(name: str) -> None:
+    assert load_config(TrainConfig, CONFIG_DIR / f'train_{name}.yaml') == TrainConfig.preset(name)
+
+
+def test_presets_scale_up() -> None:
+    tiny, default, paper = (TrainConfig.preset(n) for n in PRESET_NAMES)
+    assert tiny.geometry.iterations < default.geometry.iterations < paper.geometry.iterations
+    assert default.instance.groups == 4 and default.instance.group_size == 8 and default.instance.pixels_per_fruit == 32
+    assert default.instance.temperature == 0.2 and default.field.embedding_dim == 32
+    with pytest.raises(ConfigError, match='huge'):
+        TrainConfig.preset('huge')
+
+
+def test_cli_config_overrides_and_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / 'over.yaml').write_text('geometry:\n  iterations: 7\ninstance:\n  temperature: 0.3\n')
+    config = resolve_train_config('tiny', tmp_path / 'over.yaml')
+    assert config.geometry.iterations == 7 and config.instance.temperature == 0.3
+    assert config.semantic == TrainConfig.preset('tiny').semantic
+    (tmp_path / 'bad.yaml').write_text('geometry:\n  iteration: 7\n')
+    with pytest.raises(ConfigError, match='bad.yaml.*geometry.iteration'):
+        resolve_train_config('tiny', tmp_path / 'bad.yaml')
+    code = main(['train', str(tmp_path / 'missing'), '--out', str(tmp_path / 'run'), '--device', 'cpu'])
+    err = capsys.readouterr().err
+    assert code == 2 and 'transforms.json' in err and 'Traceback' not in err

@@ -1,0 +1,71 @@
+"""Quality of the shared tiny trained run (24-view 96 px synthetic apple tree, tiny preset, CPU).
+
+Figures are held-out views (every 8th), compared with an untrained field of the same config and box.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from fruitnerfpp_ros.core.data.dataset import load_dataset
+from fruitnerfpp_ros.core.fields.fruit_field import FruitField
+from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
+from fruitnerfpp_ros.core.rendering.renderer import RenderSettings
+from fruitnerfpp_ros.core.training import RunDir, load_trained_scene
+from fruitnerfpp_ros.core.training.metrics import evaluate_views
+from test.accuracy_targets import expect_accuracy
+
+
+def _untrained(run: Path) -> tuple[float, float]:
+    scene = load_trained_scene(run, device='cpu')
+    config = scene.config
+    dataset = load_dataset(scene.dataset_dir, eval_every=config.data.eval_every)
+    torch.manual_seed(0)
+    field = FruitField(config.field, scene.aabb)
+    grid = OccupancyGrid(torch.as_tensor(scene.aabb, dtype=torch.float32),
+                         resolution=config.render.occupancy_resolution, threshold=0.01, decay=0.95)
+    settings = RenderSettings(step=config.render.step_size(float(np.linalg.norm(scene.aabb[1] - scene.aabb[0]))),
+                              near=config.render.near)
+    views = [int(v) for v in dataset.eval_indices[:1]]  # one view: an untrained field renders every sample
+    metrics = evaluate_views(field, grid, dataset, views, settings, config.render.chunk_rays)
+    return metrics.psnr, metrics.semantic_iou
+
+
+def test_tiny_run_beats_untrained_and_separates_fruit(tiny_trained_run: Path) -> None:
+    final = [r for r in RunDir(tiny_trained_run).read_metrics() if r.get('event') == 'stage_end']
+    assert [r['stage'] for r in final] == ['geometry', 'semantic', 'instance']
+    last = final[-1]
+    psnr0, iou0 = _untrained(tiny_trained_run)
+    assert last['eval_psnr'] > psnr0 + 5.0
+    assert last['eval_semantic_iou'] > iou0 + 0.05
+    assert last['eval_instance_acc'] >= 0.7  # regression guard; the issue's target (0.9) follows
+    expect_accuracy(last['eval_instance_acc'] >= 0.9,
+                    f"held-out instance accuracy {last['eval_instance_acc']:.3f} (target 0.9)")
+
+
+def test_trained_scene_answers_queries_for_export(tiny_trained_run: Path) -> None:
+    scene = load_trained_scene(tiny_trained_run, device='cpu')
+    import json
+    fruits = json.loads((scene.dataset_dir / 'gt_fruits.json').read_text())['fruits']
+    centres = torch.tensor([f['center'] for f in fruits], dtype=torch.float32)
+    assert np.all(centres.numpy() > scene.aabb[0]) and np.all(centres.numpy() < scene.aabb[1])
+    radius = torch.tensor([f['diameter'] / 2 for f in fruits], dtype=torch.float32)
+    # points on each fruit's surface, on the side facing up/out (seen by the hemisphere cameras)
+    dirs = torch.nn.functional.normalize(torch.randn(len(fruits), 64, 3), dim=-1)
+    surface = centres[:, None] + radius[:, None, None] * dirs * 0.9
+    q = scene.field.query(surface.reshape(-1, 3))
+    prob = q.fruit_prob.reshape(len(fruits), -1)
+    assert float(prob.max(1).values.median()) > 0.5
+    density_at_fruit = q.density.reshape(len(fruits), -1).max(1).values.median()
+    lo, hi = torch.as_tensor(scene.aabb[0], dtype=torch.float32), torch.as_tensor(scene.aabb[1], dtype=torch.float32)
+    anywhere = scene.field.query(lo + torch.rand(4000, 3, generator=torch.Generator().manual_seed(0)) * (hi - lo))
+    assert float(density_at_fruit) > 5.0 * float(anywhere.density.median())
+    assert float(anywhere.density.median()) < scene.surface_density < float(q.density.max())
+    emb = torch.nn.functional.normalize(
+        (q.embedding.reshape(len(fruits), -1, q.embedding.shape[-1]) * prob[..., None]).sum(1), dim=-1)
+    cos = emb @ emb.T
+    off = cos[~torch.eye(len(fruits), dtype=torch.bool)]
+    assert float(off.mean()) < float(cos.diagonal().mean()) - 0.3  # different fruits, different embeddings

@@ -1,0 +1,119 @@
+"""Cascaded training: resume is bit-exact, stopping checkpoints, relabelling changes nothing, run dir layout."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from fruitnerfpp_ros.core.config_io import load_config, replace_nested
+from fruitnerfpp_ros.core.progress import ProgressEvent
+from fruitnerfpp_ros.core.training import RunDir, TrainConfig, load_trained_scene, train
+from fruitnerfpp_ros.errors import CheckpointError, TrainingError
+from test.core.training.stand_in_scene import make_sphere_scene
+
+MICRO = replace_nested(TrainConfig.preset('tiny'), {
+    'geometry': {'iterations': 6, 'batch_rays': 128},
+    'semantic': {'iterations': 4, 'batch_rays': 128},
+    'instance': {'iterations': 4, 'groups': 2, 'group_size': 3, 'pixels_per_fruit': 8},
+    'render': {'occupancy_update_every': 2, 'chunk_rays': 2048},
+    'data': {'eval_every': 5},
+    'checkpoint_every': 2, 'log_every': 2, 'eval_max_views': 1})
+
+
+@pytest.fixture(scope='module')
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_sphere_scene(tmp_path_factory.mktemp('spheres'), views=10, size=32, fruits=6, write_ply=True)
+
+
+def _state(run_dir: Path) -> dict[str, torch.Tensor]:
+    return load_trained_scene(run_dir, device='cpu').field.state_dict()
+
+
+def _assert_same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        assert torch.equal(a[key], b[key]), key
+
+
+def test_run_dir_layout_and_metrics(scene: Path, tmp_path: Path) -> None:
+    events: list[ProgressEvent] = []
+    summary = train(scene, tmp_path / 'run', MICRO, device='cpu', progress=events.append)
+    assert summary.completed and [s.name for s in summary.stages] == ['geometry', 'semantic', 'instance']
+    run = RunDir(tmp_path / 'run')
+    assert load_config(TrainConfig, run.config_path) == MICRO
+    assert run.latest_checkpoint.is_file() and not list(run.checkpoint_dir.glob('*.tmp'))
+    records = run.read_metrics()
+    ends = [r for r in records if r.get('event') == 'stage_end']
+    assert [r['stage'] for r in ends] == ['geometry', 'semantic', 'instance']
+    assert all({'eval_psnr', 'eval_semantic_iou', 'eval_instance_acc'} <= r.keys() for r in ends)
+    assert sum(1 for r in records if r['stage'] == 'geometry' and 'event' not in r) == 3  # log_every 2 of 6
+    assert {e.phase for e in events} == {'train:geometry', 'train:semantic', 'train:instance'}
+    scene_ = load_trained_scene(tmp_path / 'run', device='cpu')
+    assert scene_.completed_stages == 3 and scene_.dataset_dir == scene
+    assert np.allclose(scene_.aabb, summary.aabb)
+    with pytest.raises(TrainingError, match='already holds'):
+        train(scene, tmp_path / 'run', MICRO, device='cpu')
+    with pytest.raises(CheckpointError, match='latest.pt'):
+        load_trained_scene(tmp_path / 'nothing', device='cpu')
+
+
+def test_stop_then_resume_is_bit_exact(scene: Path, tmp_path: Path) -> None:
+    train(scene, tmp_path / 'full', MICRO, device='cpu')
+    stop = threading.Event()
+
+    def stop_in_semantic(event: ProgressEvent) -> None:
+        if event.phase == 'train:semantic' and event.step == 2:
+            stop.set()
+
+    first = train(scene, tmp_path / 'split', MICRO, device='cpu', progress=stop_in_semantic, stop_event=stop)
+    assert first.stopped and [s.name for s in first.stages] == ['geometry']
+    assert load_trained_scene(tmp_path / 'split', device='cpu').completed_stages == 1
+    second = train(scene, tmp_path / 'split', None, device='cpu', resume=True)
+    assert second.completed
+    _assert_same(_state(tmp_path / 'full'), _state(tmp_path / 'split'))
+    full_metrics = [r for r in RunDir(tmp_path / 'full').read_metrics() if 'wall_s' in r]
+    split_metrics = [r for r in RunDir(tmp_path / 'split').read_metrics() if 'wall_s' in r]
+    strip = [{k: v for k, v in r.items() if k != 'wall_s'} for r in full_metrics]
+    assert strip == [{k: v for k, v in r.items() if k != 'wall_s'} for r in split_metrics]
+
+
+def test_resume_after_kill_from_periodic_checkpoint(scene: Path, tmp_path: Path) -> None:
+    """A killed run restarts from its last periodic checkpoint and still ends bit-exactly."""
+    train(scene, tmp_path / 'full', MICRO, device='cpu')
+    stop = threading.Event()
+    saved: dict[str, bytes] = {}
+
+    def kill_later(event: ProgressEvent) -> None:
+        latest = RunDir(tmp_path / 'killed').latest_checkpoint
+        if event.phase == 'train:geometry' and event.step == 4:
+            saved['ckpt'] = latest.read_bytes()  # the periodic checkpoint of step 4
+        if event.phase == 'train:semantic' and event.step == 2:
+            stop.set()
+
+    train(scene, tmp_path / 'killed', MICRO, device='cpu', progress=kill_later, stop_event=stop)
+    RunDir(tmp_path / 'killed').latest_checkpoint.write_bytes(saved['ckpt'])  # the work after it was lost
+    train(scene, tmp_path / 'killed', None, device='cpu', resume=True)
+    _assert_same(_state(tmp_path / 'full'), _state(tmp_path / 'killed'))
+
+
+def test_relabelling_instance_ids_changes_nothing(scene: Path, tmp_path: Path) -> None:
+    relabelled = tmp_path / 'relabelled'
+    import shutil
+    shutil.copytree(scene, relabelled)
+    rng = np.random.default_rng(7)
+    for path in sorted((relabelled / 'instances').glob('*.png')):
+        mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        ids = np.unique(mask[mask > 0])
+        new = dict(zip(ids.tolist(), rng.choice(np.arange(1, 60000), len(ids), replace=False).tolist()))
+        out = mask.copy()
+        for old, value in new.items():
+            out[mask == old] = value
+        cv2.imwrite(str(path), out.astype(np.uint16))
+    train(scene, tmp_path / 'a', MICRO, device='cpu')
+    train(relabelled, tmp_path / 'b', MICRO, device='cpu')
+    _assert_same(_state(tmp_path / 'a'), _state(tmp_path / 'b'))

@@ -1,0 +1,99 @@
+"""End to end on the shared tiny apple scene: export -> count -> eval through the CLI, F1 >= 0.9 vs ground truth.
+
+Reuses the session's ``tiny_trained_run`` (no retraining): ``fruitnerfpp run --skip-training`` on a copy of it runs
+the same ``run_pipeline`` path as a full run, after training.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fruitnerfpp_ros.cli.main import main
+from fruitnerfpp_ros.core.export.ply import read_ply
+from test.accuracy_targets import expect_accuracy
+
+
+def _cli(args: list[str]) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main([str(a) for a in args])
+    return rc, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope='module')
+def pipeline_run(tiny_trained_run: Path, tiny_apple_dataset: Path, tmp_path_factory: pytest.TempPathFactory):
+    from fruitnerfpp_ros.core.clustering.hdbscan_cluster import warm_up
+    warm_up()
+    run = tmp_path_factory.mktemp('e2e') / 'run'
+    shutil.copytree(tiny_trained_run, run)
+    # 3M grid samples (~1.5 cm voxels on the tiny scene's box) keep the export within seconds on 2 cores
+    rc, out, err = _cli(['run', tiny_apple_dataset, '--out', run, '--skip-training', '--device', 'cpu',
+                         '--grid-points', '3000000'])
+    assert rc == 0, err
+    return run, out
+
+
+def test_run_counts_the_apples_with_f1_above_0_9(pipeline_run, tiny_apple_dataset: Path) -> None:
+    run, printed = pipeline_run
+    metrics = json.loads((run / 'eval.json').read_text())
+    gt = json.loads((tiny_apple_dataset / 'gt_fruits.json').read_text())
+    assert metrics['gt_count'] == len(gt['fruits'])
+    assert 'hungarian' in printed and 'fruits counted' in printed
+    assert {'precision', 'recall', 'f1', 'greedy'} <= set(metrics)
+    counts = json.loads((run / 'counts.json').read_text())
+    figures = (f"count {metrics['count']} vs GT {metrics['gt_count']}, P {metrics['precision']:.3f} "
+               f"R {metrics['recall']:.3f} F1 {metrics['f1']:.3f}")
+    expect_accuracy(metrics['f1'] >= 0.9 and metrics['greedy']['f1'] >= 0.85, figures)
+    assert 0.04 < np.median([f['diameter'] for f in counts['fruits']]) < 0.12  # apples of ~8 cm
+
+
+def test_outputs_carry_the_same_ids(pipeline_run) -> None:
+    run, _ = pipeline_run
+    counts = json.loads((run / 'counts.json').read_text())
+    assert counts['version'] == 1 and counts['total'] == len(counts['fruits'])
+    assert [f['id'] for f in counts['fruits']] == list(range(1, counts['total'] + 1))
+    cloud, labels = read_ply(run / 'cloud.ply')
+    assert labels is not None and len(labels) == len(cloud)
+    sizes = np.bincount(labels, minlength=counts['total'] + 1)
+    assert [int(s) for s in sizes[1:]] == [f['n_points'] for f in counts['fruits']]
+    for fruit in counts['fruits']:
+        np.testing.assert_allclose(np.median(cloud.xyz[labels == fruit['id']], axis=0), fruit['center'], atol=1e-5)
+        assert fruit['diameter'] > 0
+    report = json.loads((run / 'export.json').read_text())
+    assert report['n_kept'] == len(cloud) and report['n_dense'] >= report['n_kept']
+
+
+def test_count_and_eval_subcommands(pipeline_run, tiny_apple_dataset: Path, tmp_path: Path) -> None:
+    run, _ = pipeline_run
+    cloud_copy = tmp_path / 'cloud.ply'
+    shutil.copy(run / 'cloud.ply', cloud_copy)
+    rc, out, err = _cli(['count', cloud_copy, '--out', tmp_path / 'counts.json'])
+    assert rc == 0, err
+    total = json.loads((tmp_path / 'counts.json').read_text())['total']
+    assert total == json.loads((run / 'counts.json').read_text())['total']
+    rc, out, err = _cli(['eval', tmp_path / 'counts.json', '--gt', tiny_apple_dataset / 'gt_fruits.json', '--json'])
+    assert rc == 0, err
+    data = json.loads(out)
+    assert {'count', 'gt_count', 'precision', 'recall', 'f1'} <= set(data)
+    assert data['count'] == total and data['gt_count'] == 20
+    expect_accuracy(data['f1'] >= 0.9, f"F1 {data['f1']:.3f} (count {total})")
+
+
+def test_missing_files_are_one_line_errors(tmp_path: Path) -> None:
+    rc, out, err = _cli(['export', tmp_path])
+    assert rc == 2 and 'latest.pt' in err and 'Traceback' not in err
+    rc, out, err = _cli(['count', tmp_path])
+    assert rc == 2 and 'no cloud.npz or cloud.ply' in err and 'fruitnerfpp export' in err
+    (tmp_path / 'counts.json').write_text(json.dumps({'total': 0, 'fruits': []}))
+    rc, out, err = _cli(['eval', tmp_path / 'counts.json', '--gt', tmp_path / 'gt_fruits.json'])
+    assert rc == 2 and 'gt_fruits.json: ground truth file not found' in err
+    (tmp_path / 'gt_fruits.json').write_text(json.dumps({'fruit': []}))
+    rc, out, err = _cli(['eval', tmp_path / 'counts.json', '--gt', tmp_path / 'gt_fruits.json'])
+    assert rc == 2 and '"fruits" list' in err
