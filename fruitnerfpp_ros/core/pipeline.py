@@ -129,12 +129,16 @@ def write_counts(path: str | Path, count: CountResult, config: ClusterConfig | N
     return _write_json(Path(path), counts_to_json(count, config, source=source))
 
 
-def _tqdm_progress() -> Callable[[ProgressEvent], None]:
+def _tqdm_progress(*, skip_prefix: str = 'train:') -> Callable[[ProgressEvent], None]:
+    """tqdm bars driven by progress events; phases starting with ``skip_prefix`` are left out (the trainer draws
+    its own per-step bars)."""
     from tqdm import tqdm
 
     bars: dict[str, Any] = {}
 
     def show(event: ProgressEvent) -> None:
+        if event.phase.startswith(skip_prefix):
+            return
         bar = bars.get(event.phase)
         if bar is None:
             bar = bars[event.phase] = tqdm(total=event.total or None, desc=event.phase, leave=False)

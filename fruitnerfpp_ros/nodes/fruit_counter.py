@@ -27,9 +27,8 @@ from typing import Any
 
 import yaml
 
-import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
@@ -40,6 +39,7 @@ from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler, ThrottledLog
 from fruitnerfpp_ros.nodes.params import declare_parameters, keyframe_config, pipeline_configs, settings_mapping
 from fruitnerfpp_ros.nodes.results import (DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, diagnostics_msg, result_messages,
                                            write_report)
+from fruitnerfpp_ros.nodes.node_main import spin_node
 
 __all__ = ['FruitCounterNode', 'main', 'default_output_dir', 'LATCHED_QOS']
 
@@ -322,25 +322,8 @@ class FruitCounterNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node (``ros2 run fruitnerfpp_ros fruit_counter [--ros-args ...]``)."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = FruitCounterNode()
-        executor = MultiThreadedExecutor(num_threads=3)
-        executor.add_node(node)
-        executor.spin()
-    except FruitNerfError as err:
-        print(f'fruit_counter: error: {err}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.stop_training(timeout_s=5.0)
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
+    return spin_node('fruit_counter', FruitCounterNode, lambda: MultiThreadedExecutor(num_threads=3), args,
+                     on_shutdown=lambda node: node.stop_training(timeout_s=5.0))
 
 if __name__ == '__main__':
     sys.exit(main())

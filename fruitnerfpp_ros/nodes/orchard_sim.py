@@ -24,16 +24,16 @@ from typing import Any
 import cv2
 import numpy as np
 
-import rclpy
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.geometry import invert_transform, optical_from_opengl
-from fruitnerfpp_ros.errors import DatasetError, FruitNerfError
+from fruitnerfpp_ros.errors import DatasetError
 from fruitnerfpp_ros.nodes.conversions import (camera_info_msg_from_intrinsics, image_msg_from_array,
                                                pose_msg_from_transform, time_msg_from_ns)
+from fruitnerfpp_ros.nodes.node_main import spin_node
 
 __all__ = ['OrchardSimNode', 'main', 'T_BASE_OPTICAL']
 
@@ -215,24 +215,7 @@ class OrchardSimNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Run the node (``ros2 run fruitnerfpp_ros orchard_sim --ros-args -p source:=DIR``)."""
-    rclpy.init(args=args)
-    node = None
-    try:
-        node = OrchardSimNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except FruitNerfError as err:
-        print(f'orchard_sim: error: {err}', file=sys.stderr)
-        return 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        rclpy.try_shutdown()
-    return 0
-
+    return spin_node('orchard_sim', OrchardSimNode, SingleThreadedExecutor, args)
 
 if __name__ == '__main__':
     sys.exit(main())
