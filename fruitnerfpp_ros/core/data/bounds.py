@@ -13,65 +13,26 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from fruitnerfpp_ros.core.data.ply_io import PlyError, read_ply_vertices
 from fruitnerfpp_ros.errors import DatasetError
 
 __all__ = ['scene_aabb', 'aabb_from_cameras', 'aabb_from_points', 'read_ply_points']
 
-_PLY_TYPES = {'char': 'i1', 'uchar': 'u1', 'int8': 'i1', 'uint8': 'u1', 'short': 'i2', 'ushort': 'u2',
-              'int16': 'i2', 'uint16': 'u2', 'int': 'i4', 'uint': 'u4', 'int32': 'i4', 'uint32': 'u4',
-              'float': 'f4', 'float32': 'f4', 'double': 'f8', 'float64': 'f8'}
-
-
 def read_ply_points(path: str | Path) -> np.ndarray:
-    """Vertex positions [N, 3] float64 of a PLY file (ascii or binary, vertex x/y/z properties).
+    """Finite vertex positions [N, 3] float64 of a PLY file (ascii or binary, vertex x/y/z properties).
 
     Raises:
         DatasetError: the file is missing or not a PLY with vertex x, y, z.
     """
-    path = Path(path)
     try:
-        raw = path.read_bytes()
+        vertices = read_ply_vertices(path)
     except OSError as err:
         raise DatasetError(f'{path}: cannot read point cloud: {err}') from err
-    end = raw.find(b'end_header')
-    if not raw.startswith(b'ply') or end < 0:
-        raise DatasetError(f'{path}: not a PLY file')
-    header = raw[:end].decode('ascii', errors='replace').splitlines()
-    body = raw[raw.index(b'\n', end) + 1:]
-    fmt, count, props, in_vertex, before = 'ascii', 0, [], False, 0
-    for line in header:
-        words = line.split()
-        if not words:
-            continue
-        if words[0] == 'format':
-            fmt = words[1]
-        elif words[0] == 'element':
-            in_vertex = words[1] == 'vertex'
-            if in_vertex:
-                count = int(words[2])
-            elif count == 0:
-                before += 1
-        elif words[0] == 'property' and in_vertex:
-            if words[1] == 'list':
-                raise DatasetError(f'{path}: list properties on vertices are not supported')
-            props.append((words[2], _PLY_TYPES.get(words[1], 'f4')))
-    names = [p[0] for p in props]
-    if not {'x', 'y', 'z'} <= set(names) or before:
+    except PlyError as err:
+        raise DatasetError(str(err)) from err
+    if not {'x', 'y', 'z'} <= set(vertices.dtype.names or ()):
         raise DatasetError(f'{path}: expected a first PLY element "vertex" with x, y, z properties')
-    if fmt == 'ascii':
-        rows = body.decode('ascii', errors='replace').split('\n')[:count]
-        try:
-            table = np.array([[float(v) for v in r.split()[:len(props)]] for r in rows], dtype=np.float64)
-        except ValueError as err:
-            raise DatasetError(f'{path}: malformed ASCII vertex data: {err}') from err
-        points = table[:, [names.index('x'), names.index('y'), names.index('z')]] if count else np.zeros((0, 3))
-    else:
-        order = '<' if fmt == 'binary_little_endian' else '>'
-        dtype = np.dtype([(n, order + t) for n, t in props])
-        if len(body) < dtype.itemsize * count:
-            raise DatasetError(f'{path}: truncated PLY vertex data')
-        table = np.frombuffer(body, dtype=dtype, count=count)
-        points = np.stack([table['x'], table['y'], table['z']], axis=1).astype(np.float64)
+    points = np.stack([vertices['x'], vertices['y'], vertices['z']], axis=1).astype(np.float64)
     return points[np.all(np.isfinite(points), axis=1)]
 
 

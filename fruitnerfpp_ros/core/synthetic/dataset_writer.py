@@ -13,6 +13,7 @@ from typing import Any, Sequence
 import cv2
 import numpy as np
 
+from fruitnerfpp_ros.core.data.ply_io import write_ply_vertices
 from fruitnerfpp_ros.core.synthetic.scene import GtFruit
 from fruitnerfpp_ros.errors import SynthError
 
@@ -74,8 +75,4 @@ def write_sparse_ply(path: Path, points: np.ndarray, colors: np.ndarray) -> None
                                           ('red', 'u1'), ('green', 'u1'), ('blue', 'u1')])
     vertex['x'], vertex['y'], vertex['z'] = points[:, 0], points[:, 1], points[:, 2]
     vertex['red'], vertex['green'], vertex['blue'] = colors[:, 0], colors[:, 1], colors[:, 2]
-    header = ('ply\nformat binary_little_endian 1.0\n'
-              f'element vertex {len(points)}\n'
-              'property float x\nproperty float y\nproperty float z\n'
-              'property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n')
-    path.write_bytes(header.encode('ascii') + vertex.tobytes())
+    write_ply_vertices(path, vertex)
