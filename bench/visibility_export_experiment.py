@@ -49,4 +49,5 @@ for wt in [float(a) for a in sys.argv[3:]]:
                             q.fruit_prob[keep].numpy().astype(np.float32), q.embedding[keep].numpy().astype(np.float32))
     res_ = count_fruits(cloud, ClusterConfig(n_jobs=1))
     m = evaluate_counts(res_.centers(), gt)
-    print(f'w>={wt}: points {len(cloud)} count {res_.count} ->', {k: getattr(m, k) for k in ('tp','precision','recall','f1') if hasattr(m, k)} if not isinstance(m, dict) else m)
+    print(f'W >= {wt}: points {len(cloud)}  count {res_.count}  precision {m.precision:.3f}  '
+          f'recall {m.recall:.3f}  F1 {m.f1:.3f}')

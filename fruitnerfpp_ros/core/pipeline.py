@@ -29,9 +29,9 @@ from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ExportError
 
-__all__ = ['PipelineResult', 'PipelineOutputs', 'run_pipeline', 'export_run', 'count_run', 'evaluate_run',
-           'counts_to_json', 'write_counts', 'COUNTS_FORMAT_VERSION', 'CLOUD_PLY', 'CLOUD_NPZ', 'COUNTS_JSON',
-           'EVAL_JSON', 'EXPORT_JSON', 'GT_JSON']
+__all__ = ['PipelineResult', 'PipelineOutputs', 'run_pipeline', 'export_run', 'count_run', 'count_cloud',
+           'evaluate_run', 'counts_to_json', 'write_counts', 'COUNTS_FORMAT_VERSION', 'CLOUD_PLY', 'CLOUD_NPZ',
+           'COUNTS_JSON', 'EVAL_JSON', 'EXPORT_JSON', 'GT_JSON']
 
 COUNTS_FORMAT_VERSION = 1
 CLOUD_PLY, CLOUD_NPZ, COUNTS_JSON, EVAL_JSON, EXPORT_JSON = 'cloud.ply', 'cloud.npz', 'counts.json', 'eval.json', \
@@ -152,10 +152,11 @@ def _tqdm_progress(*, skip_prefix: str = 'train:') -> Callable[[ProgressEvent], 
 
 def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *, device: str = 'auto',
                out: str | Path | None = None, progress: ProgressCallback | None = None,
-               stop_event: threading.Event | None = None) -> ExportResult:
+               stop_event: threading.Event | None = None, write_cloud: bool = True) -> ExportResult:
     """Export the fruit point cloud of a trained run to ``out`` (default ``RUN_DIR/cloud.ply``) plus ``.npz``.
 
-    Also writes ``export.json`` (the export report) next to the cloud.
+    Also writes ``export.json`` (the export report) next to the cloud. ``write_cloud=False`` leaves the cloud
+    files to the caller (:func:`run_pipeline` writes them once, with the cluster ids).
 
     Raises:
         CheckpointError: ``run_dir`` is not a trained run.
@@ -168,8 +169,9 @@ def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *
     result = export_fruit_cloud(scene.field, scene.aabb, export_config or ExportConfig(),
                                 surface_density=scene.surface_density, progress=progress, stop_event=stop_event)
     ply = Path(out) if out is not None else run_dir / CLOUD_PLY
-    write_ply(ply, result.cloud)
-    write_npz(ply.with_suffix('.npz'), result.cloud)
+    if write_cloud:
+        write_ply(ply, result.cloud)
+        write_npz(ply.with_suffix('.npz'), result.cloud)
     _write_json(ply.with_name(EXPORT_JSON), result.report.to_json())
     return result
 
@@ -198,15 +200,22 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
     Raises:
         ExportError: no cloud found / unreadable cloud.
     """
-    config = cluster_config or ClusterConfig()
     cloud_path = _cloud_source(Path(source))
     cloud, _ = read_cloud(cloud_path)
-    count = count_fruits(cloud, config, progress=progress)
     counts_path = Path(out) if out is not None else cloud_path.with_name(COUNTS_JSON)
+    count = count_cloud(cloud, cluster_config, cloud_path=cloud_path, counts_path=counts_path, progress=progress)
+    return count, cloud, counts_path
+
+
+def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *, cloud_path: Path,
+                counts_path: Path, progress: ProgressCallback | None = None) -> CountResult:
+    """Count ``cloud``, write ``counts_path`` and the cloud with its cluster ids as ``cloud_path`` .ply + .npz."""
+    config = cluster_config or ClusterConfig()
+    count = count_fruits(cloud, config, progress=progress)
     write_counts(counts_path, count, config, source=str(cloud_path))
     write_ply(cloud_path.with_suffix('.ply'), cloud, count.labels)
     write_npz(cloud_path.with_suffix('.npz'), cloud, count.labels)
-    return count, cloud, counts_path
+    return count
 
 
 def evaluate_run(counts_json: str | Path, gt_json: str | Path, *, out: str | Path | None = None,
@@ -260,9 +269,11 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
             empty = FruitPointCloud.empty(0)
             return PipelineResult(run_dir, empty, None, CountResult(np.zeros(0, np.int32), [], {}), None,
                                   PipelineOutputs(None, None, None, None, None), stopped=True, train_summary=summary)
-    exported = export_run(run_dir, export_config, device=device, progress=progress, stop_event=stop_event)
-    count, cloud, counts_path = count_run(run_dir / CLOUD_NPZ, cluster_config, out=run_dir / COUNTS_JSON,
-                                          progress=progress)
+    exported = export_run(run_dir, export_config, device=device, progress=progress, stop_event=stop_event,
+                          write_cloud=False)
+    cloud, counts_path = exported.cloud, run_dir / COUNTS_JSON
+    count = count_cloud(cloud, cluster_config, cloud_path=run_dir / CLOUD_PLY, counts_path=counts_path,
+                        progress=progress)
     metrics = None
     eval_path = None
     gt_path = dataset_dir / GT_JSON
