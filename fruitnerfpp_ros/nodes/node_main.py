@@ -18,7 +18,8 @@ def spin_node(name: str, make_node: Callable[[], Node], make_executor: Callable[
               args: list[str] | None = None, *, on_shutdown: Callable[[Node], None] | None = None) -> int:
     """Create the node, spin it until Ctrl-C / shutdown, and return the process exit code.
 
-    Bad parameters or input (:class:`FruitNerfError`) end the process with one line on stderr and exit code 2.
+    Bad parameters or input (:class:`FruitNerfError`) end the process with one line on stderr and exit code 2;
+    Ctrl-C / SIGINT at any point after ``rclpy.init`` is a clean stop (exit code 0).
     ``on_shutdown`` runs before the node is destroyed (e.g. to stop a training thread).
     """
     rclpy.init(args=args)
@@ -33,6 +34,11 @@ def spin_node(name: str, make_node: Callable[[], Node], make_executor: Callable[
         return 2
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except Exception:
+        # A SIGINT between node construction and spin() shuts the context down under rclpy's signal handler;
+        # whatever then fails (adding the node, starting the executor) is part of a requested stop.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             if on_shutdown is not None:

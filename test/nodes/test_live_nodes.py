@@ -162,7 +162,8 @@ def test_fruit_counter_runs_as_a_process_and_stops_on_sigint(tmp_path: Path) -> 
                 break
         assert 'collecting keyframes into' in lines[-1], ''.join(lines)
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=20) == 0
+        rc = proc.wait(timeout=20)
+        assert rc == 0, ''.join(lines) + proc.stdout.read()  # the node's own words on a failed stop
     finally:
         if proc.poll() is None:
             proc.kill()
