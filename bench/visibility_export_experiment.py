@@ -7,7 +7,11 @@ fruit probability >= 0.9 are clustered and scored like `fruitnerfpp count` + `ev
 Usage: python bench/visibility_export_experiment.py RUN_DIR DATASET_DIR W [W ...]
 Findings: docs/results/tiny_preset.md.
 """
-import sys, json, numpy as np, torch
+import sys
+
+import numpy as np
+import torch
+
 torch.set_num_threads(1)
 from fruitnerfpp_ros.core.training import load_trained_scene
 from fruitnerfpp_ros.core.data.dataset import load_dataset

@@ -33,9 +33,8 @@ def pipeline_run(tiny_trained_run: Path, tiny_apple_dataset: Path, tmp_path_fact
     warm_up()
     run = tmp_path_factory.mktemp('e2e') / 'run'
     shutil.copytree(tiny_trained_run, run)
-    # 3M grid samples (~1.5 cm voxels on the tiny scene's box) keep the export within seconds on 2 cores
-    rc, out, err = _cli(['run', tiny_apple_dataset, '--out', run, '--skip-training', '--device', 'cpu',
-                         '--grid-points', '3000000'])
+    # the default export voxel is the run's marching step (2 cm on the tiny scene's box): seconds on 2 cores
+    rc, out, err = _cli(['run', tiny_apple_dataset, '--out', run, '--skip-training', '--device', 'cpu'])
     assert rc == 0, err
     return run, out
 

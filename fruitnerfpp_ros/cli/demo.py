@@ -62,7 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--out', type=Path, required=True, help='output directory (scene/, orchard_bag/, run/)')
     parser.add_argument('--fruit', default='apple', help='fruit type (apple, plum, lemon, pear, peach, mango)')
     parser.add_argument('--count', type=int, default=20, help='fruits on the tree')
-    parser.add_argument('--views', type=int, default=24, help='camera views in the drive')
+    parser.add_argument('--views', type=int, default=48, help='camera views in the drive')
     parser.add_argument('--resolution', type=int, default=96, help='square image size, px')
     parser.add_argument('--trajectory', choices=('hemisphere', 'row'), default='hemisphere')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap', help='rosbag2 storage')

@@ -46,8 +46,9 @@ def _overrides(config: T, **values: Any) -> T:
 def _export_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--density-threshold', type=float, help='minimum density in 1/m (default: the run\'s '
                         'surface density ln2/step)')
-    parser.add_argument('--fruit-threshold', type=float, help='minimum fruit probability (default 0.5)')
-    parser.add_argument('--grid-points', type=int, help='grid samples over the scene box')
+    parser.add_argument('--fruit-threshold', type=float, help='minimum fruit probability (default 0.9)')
+    parser.add_argument('--grid-points', type=int,
+                        help="grid samples over the scene box (default: a voxel of the run's ray-marching step)")
     parser.add_argument('--voxel-size', type=float, help='grid spacing in metres (overrides --grid-points)')
 
 

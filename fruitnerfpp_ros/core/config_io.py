@@ -15,6 +15,7 @@ from typing import Any, Mapping, TypeVar
 
 import yaml
 
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['config_from_mapping', 'config_to_mapping', 'load_config', 'load_yaml_mapping', 'save_config',
@@ -151,10 +152,7 @@ def load_config(cls: type[T], path: str | Path, *, section: str | None = None) -
 
 def save_config(config: Any, path: str | Path) -> None:
     """Write a config dataclass as YAML (atomically)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_text(yaml.safe_dump(config_to_mapping(config), sort_keys=False))
-    tmp.replace(path)
+    atomic_write_text(path, yaml.safe_dump(config_to_mapping(config), sort_keys=False))
 
 
 def replace_nested(config: T, overrides: Mapping[str, Any]) -> T:

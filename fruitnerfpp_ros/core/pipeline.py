@@ -15,6 +15,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
@@ -110,10 +111,7 @@ def _json_safe(value: Any) -> Any:
 
 
 def _write_json(path: Path, data: Any) -> Path:
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_text(json.dumps(_json_safe(data), indent=1))
-    tmp.replace(path)
-    return path
+    return atomic_write_text(path, json.dumps(_json_safe(data), indent=1))
 
 
 def counts_to_json(count: CountResult, config: ClusterConfig | None = None, *, source: str = '') -> dict[str, Any]:
@@ -167,7 +165,8 @@ def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *
     run_dir = Path(run_dir)
     scene = load_trained_scene(run_dir, device=device)
     result = export_fruit_cloud(scene.field, scene.aabb, export_config or ExportConfig(),
-                                surface_density=scene.surface_density, progress=progress, stop_event=stop_event)
+                                surface_density=scene.surface_density, march_step=scene.march_step,
+                                progress=progress, stop_event=stop_event)
     ply = Path(out) if out is not None else run_dir / CLOUD_PLY
     if write_cloud:
         write_ply(ply, result.cloud)

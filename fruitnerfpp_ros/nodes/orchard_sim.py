@@ -44,7 +44,7 @@ _PARAMS = {  # name: (default, description)
     'source': ('', "transforms.json dataset dir or rosbag2 to publish; '' = generate a small scene first"),
     'fruit': ('apple', 'generated scene: fruit type'),
     'count': (20, 'generated scene: number of fruits'),
-    'views': (24, 'generated scene: number of camera views'),
+    'views': (48, 'generated scene: number of camera views'),
     'resolution': (96, 'generated scene: square image size, px'),
     'trajectory': ('hemisphere', 'generated scene: hemisphere or row'),
     'seed': (0, 'generated scene: random seed'),

@@ -12,6 +12,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.nodes.conversions import (cloud_msg_from_points, markers_from_fruits, pose_array_from_centers,
@@ -75,9 +76,4 @@ def diagnostics_msg(name: str, hardware_id: str, level: str, message: str, value
 
 def write_report(path: str | Path, report_msg_data: str) -> Path:
     """Write the report JSON (the ``fruit_report`` payload) atomically, pretty-printed."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_text(json.dumps(json.loads(report_msg_data), indent=1))
-    tmp.replace(path)
-    return path
+    return atomic_write_text(path, json.dumps(json.loads(report_msg_data), indent=1))

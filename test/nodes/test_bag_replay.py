@@ -25,9 +25,10 @@ from fruitnerfpp_ros.nodes.conversions import points_from_cloud_msg
 from fruitnerfpp_ros.nodes.params import settings_from_parameters
 from fruitnerfpp_ros.nodes.results import OUTPUT_TOPICS
 from test.accuracy_targets import expect_accuracy
+from test.shared_fixtures import TINY_SCENE
 
 #: The scene of the shared ``tiny_apple_dataset`` fixture (same config and seed -> the same tree and views).
-SCENE = dict(fruit='apple', count=20, views=24, resolution=(96, 96), trajectory='hemisphere', seed=0)
+SCENE = TINY_SCENE
 SETTINGS = settings_from_parameters({'preset': 'tiny', 'device': 'cpu'})
 
 
@@ -102,10 +103,10 @@ def test_replay_writes_results_mcap_readable_by_rosbags_and_mcap(bags: dict[str,
     shutil.copytree(tiny_trained_run, run)
     result = replay_bag(bags['mcap'], run, SETTINGS, log=_quiet, skip_training=True)
     count = result.count.count
-    assert result.n_keyframes == 24
+    assert result.n_keyframes == SCENE['views']
     assert json.loads((run / 'counts.json').read_text())['total'] == count
     report = json.loads(result.report_path.read_text())
-    assert report['total'] == count and report['frame_id'] == 'map' and report['keyframes'] == 24
+    assert report['total'] == count and report['frame_id'] == 'map' and report['keyframes'] == SCENE['views']
 
     check_results_mcap(result)
     expect_accuracy(abs(count - 20) <= 2, f'counted {count}, ground truth 20')  # the fixture tree has 20 apples
@@ -114,7 +115,7 @@ def test_replay_writes_results_mcap_readable_by_rosbags_and_mcap(bags: dict[str,
 def test_replay_cli_collects_and_reports_errors_in_one_line(bags: dict[str, Path], tmp_path: Path,
                                                             capsys: pytest.CaptureFixture) -> None:
     assert cli_main(['replay', str(bags['sqlite3']), '--out', str(tmp_path / 'run'), '--no-train']) == 0
-    assert 'keyframes: 24' in capsys.readouterr().out
+    assert f"keyframes: {SCENE['views']}" in capsys.readouterr().out
     assert cli_main(['replay', str(tmp_path / 'missing'), '--out', str(tmp_path / 'run2')]) == 2
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and 'no such bag' in err and 'Traceback' not in err

@@ -61,7 +61,8 @@ def cluster_partition(xyz: np.ndarray, embedding: np.ndarray, config: ClusterCon
                         lambda_c=config.lambda_c, lambda_e=config.lambda_e, metric=config.metric, workers=workers)
     labels, _ = fast_hdbscan(graph.matrix, metric='precomputed', min_samples=int(min_samples),
                              min_cluster_size=int(min_cluster_size),
-                             cluster_selection_method=config.cluster_selection_method)
+                             cluster_selection_method=config.cluster_selection_method,
+                             cluster_selection_epsilon=float(config.cluster_selection_epsilon))
     return np.asarray(labels, np.int64), graph.exact_fraction
 
 

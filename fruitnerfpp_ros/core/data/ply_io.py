@@ -15,7 +15,9 @@ from typing import Iterable
 import numpy as np
 from numpy.lib import recfunctions
 
-__all__ = ['PlyError', 'PLY_FORMATS', 'read_ply_vertices', 'write_ply_vertices']
+from fruitnerfpp_ros.core.atomic_io import atomic_write_bytes
+
+__all__ = ['PlyError', 'PLY_FORMATS', 'read_ply_comments', 'read_ply_vertices', 'write_ply_vertices']
 
 PLY_FORMATS = ('binary_little_endian', 'binary_big_endian', 'ascii')
 
@@ -40,10 +42,17 @@ def write_ply_vertices(path: str | Path, vertices: np.ndarray, *, comments: Iter
               f'element vertex {len(vertices)}']
     header += [f'property {_TYPE_NAMES[dtype.fields[name][0].str[1:]]} {name}' for name in dtype.names]
     header.append('end_header')
-    tmp = path.with_name(path.name + '.tmp')
-    tmp.write_bytes(('\n'.join(header) + '\n').encode('ascii') + vertices.astype(dtype, copy=False).tobytes())
-    tmp.replace(path)
-    return path
+    return atomic_write_bytes(path, ('\n'.join(header) + '\n').encode('ascii')
+                              + vertices.astype(dtype, copy=False).tobytes())
+
+
+def read_ply_comments(path: str | Path) -> list[str]:
+    """The ``comment`` lines of a PLY header (without the keyword), in order; [] when there are none."""
+    with open(path, 'rb') as f:
+        head = f.read(65536)
+    end = head.find(b'end_header')
+    lines = head[:end if end >= 0 else len(head)].decode('ascii', errors='replace').splitlines()
+    return [line[len('comment '):].strip() for line in lines if line.startswith('comment ')]
 
 
 def read_ply_vertices(path: str | Path, *, formats: tuple[str, ...] = PLY_FORMATS) -> np.ndarray:

@@ -17,13 +17,13 @@ image's top-left corner at (0, 0). Intrinsics are global keys, and a frame may o
 from __future__ import annotations
 
 import json
-import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.errors import DatasetError
 
 __all__ = ['CameraIntrinsics', 'FrameEntry', 'TransformsFile', 'read_transforms', 'write_transforms',
@@ -191,11 +191,5 @@ def read_transforms(dataset_dir: str | Path) -> TransformsFile:
 
 def write_transforms(dataset_dir: str | Path, transforms: TransformsFile) -> Path:
     """Write ``dataset_dir/transforms.json`` atomically (write a temp file, then rename); returns its path."""
-    path = Path(dataset_dir) / TRANSFORMS_NAME
-    tmp = path.with_name(path.name + '.tmp')
-    with open(tmp, 'w') as f:
-        json.dump(transforms.to_json(), f, indent=1)
-        f.flush()
-        os.fsync(f.fileno())
-    tmp.replace(path)
-    return path
+    return atomic_write_text(Path(dataset_dir) / TRANSFORMS_NAME, json.dumps(transforms.to_json(), indent=1),
+                             fsync=True)

@@ -17,13 +17,17 @@ class ExportConfig:
     probability both pass their thresholds.
     """
 
-    grid_points: int = 8_000_000
-    """Target number of grid samples over the box (the voxel size follows from the box volume): 8M gives ~1 cm
-    voxels in a 2 m box, 100-300 points on a 7-8 cm apple. The paper's FUJI export kept ~600k fruit points from a
-    much larger grid. Only the coarse pass (``grid_points / coarse_factor^3`` samples) covers the whole box."""
-
     voxel_size_m: float | None = None
-    """Grid spacing in metres; overrides ``grid_points`` when set."""
+    """Grid spacing in metres. None: ``grid_points`` when set, else the trained scene's ray-marching step (the
+    finest spacing at which rendering constrained the density; about 1.4 cm on the 300-view apple tree with the
+    default preset, 2 cm on the tiny scene), else a grid of 8M samples."""
+
+    grid_points: int | None = None
+    """Target number of grid samples over the box (the voxel size follows from the box volume); used when
+    ``voxel_size_m`` is not set. Only the coarse pass (``samples / coarse_factor^3``) covers the whole box."""
+
+    max_grid_points: int = 2_000_000_000
+    """Safety cap on the fine grid's size (an ExportError names the voxel size when exceeded)."""
 
     density_threshold: float | None = None
     """Minimum density (1/m). None: the trained scene's surface density, ``ln 2 / ray-marching step``, where one
@@ -56,7 +60,7 @@ class ExportConfig:
     """Safety cap on kept points (an ExportError names the thresholds when exceeded)."""
 
     def __post_init__(self) -> None:
-        if self.grid_points < 1000:
+        if self.grid_points is not None and self.grid_points < 1000:
             raise ConfigError('ExportConfig: grid_points must be >= 1000')
         if self.voxel_size_m is not None and not self.voxel_size_m > 0:
             raise ConfigError('ExportConfig: voxel_size_m must be > 0')

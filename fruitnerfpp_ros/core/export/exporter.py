@@ -107,11 +107,20 @@ class ExportResult(NamedTuple):
     report: ExportReport
 
 
-def export_grid(aabb: np.ndarray, config: ExportConfig) -> tuple[np.ndarray, float, tuple[int, int, int]]:
+DEFAULT_GRID_POINTS = 8_000_000
+"""Grid size when neither a voxel size, a grid size nor the scene's marching step is known."""
+
+
+def export_grid(aabb: np.ndarray, config: ExportConfig, march_step: float | None = None,
+                ) -> tuple[np.ndarray, float, tuple[int, int, int]]:
     """The sampled box [2, 3] (crop applied), voxel size (m) and samples per axis.
 
+    The voxel size is ``config.voxel_size_m``, else follows from ``config.grid_points``, else is ``march_step``
+    (the trained scene's ray-marching step), else follows from :data:`DEFAULT_GRID_POINTS`.
+
     Raises:
-        ExportError: when the box (or its intersection with the crop box) is empty or not finite.
+        ExportError: when the box (or its intersection with the crop box) is empty or not finite, or the grid
+            would exceed ``config.max_grid_points``.
     """
     box = np.asarray(aabb, np.float64).reshape(2, 3)
     if config.aabb is not None:
@@ -121,8 +130,16 @@ def export_grid(aabb: np.ndarray, config: ExportConfig) -> tuple[np.ndarray, flo
     if not np.all(np.isfinite(box)) or np.any(size <= 0):
         raise ExportError(f'export box {box.tolist()} is empty or not finite (scene box {np.asarray(aabb).tolist()}, '
                           f'crop {config.aabb})')
-    voxel = config.voxel_size_m or float((np.prod(size) / config.grid_points) ** (1.0 / 3.0))
+    if config.voxel_size_m is not None:
+        voxel = float(config.voxel_size_m)
+    elif config.grid_points is not None or march_step is None:
+        voxel = float((np.prod(size) / (config.grid_points or DEFAULT_GRID_POINTS)) ** (1.0 / 3.0))
+    else:
+        voxel = float(march_step)
     shape = tuple(int(v) for v in np.maximum(1, np.round(size / voxel)).astype(np.int64))
+    if int(np.prod(shape)) > config.max_grid_points:
+        raise ExportError(f'export grid {shape} at voxel {voxel * 1000:.1f} mm exceeds max_grid_points '
+                          f'{config.max_grid_points}: set a larger voxel_size_m or a crop box')
     return box, voxel, shape  # type: ignore[return-value]
 
 
@@ -165,7 +182,8 @@ def _index_batches(shape: tuple[int, int, int], batch: int, device: torch.device
 
 @torch.no_grad()
 def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportConfig | None = None, *,
-                       surface_density: float | None = None, progress: ProgressCallback | None = None,
+                       surface_density: float | None = None, march_step: float | None = None,
+                       progress: ProgressCallback | None = None,
                        stop_event: threading.Event | None = None) -> ExportResult:
     """Sample ``field`` on a uniform grid over ``aabb`` and keep the dense fruit points.
 
@@ -174,6 +192,7 @@ def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportCo
         aabb: [2, 3] scene box (m).
         config: grid and thresholds (defaults when None).
         surface_density: the scene's surface density (1/m) used when ``config.density_threshold`` is None.
+        march_step: the scene's ray-marching step (m): the default voxel size (see :func:`export_grid`).
         progress: receives ``export:coarse`` (once) and ``export`` phase events.
         stop_event: when set, the export stops early and returns the points so far (``report.stopped``).
 
@@ -191,7 +210,7 @@ def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportCo
         density_threshold = float(surface_density) * config.density_scale
     else:
         raise ExportError('export needs ExportConfig.density_threshold or the scene surface density; neither given')
-    box, voxel, shape = export_grid(aabb, config)
+    box, voxel, shape = export_grid(aabb, config, march_step)
     device = _field_device(field)
     lo = torch.as_tensor(box[0], dtype=torch.float32, device=device)
     dim = int(field.embedding_dim)
@@ -277,9 +296,10 @@ def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportCo
             progress(ProgressEvent('export', b + 1, n_batches, f'{n_kept} fruit points'))
     progress(ProgressEvent('export', n_batches, n_batches, f'{n_kept} fruit points'))
     if kept:
-        cloud = FruitPointCloud(*(np.ascontiguousarray(np.concatenate(parts)) for parts in zip(*kept)))
+        cloud = FruitPointCloud(*(np.ascontiguousarray(np.concatenate(parts)) for parts in zip(*kept)),
+                                spacing_m=voxel)
     else:
-        cloud = FruitPointCloud.empty(dim)
+        cloud = FruitPointCloud.empty(dim, spacing_m=voxel)
     report = ExportReport(grid_shape=shape, voxel_size_m=voxel, aabb=box.tolist(), n_grid=n_grid, n_coarse=n_coarse,
                           n_coarse_dense=n_coarse_dense, n_coarse_refined=0 if cells is None else len(cells),
                           n_evaluated=n_evaluated, n_dense=n_dense, n_fruit=n_fruit, n_kept=n_kept,

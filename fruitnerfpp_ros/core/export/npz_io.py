@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from fruitnerfpp_ros.core.atomic_io import atomic_path
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.errors import ExportError
 
@@ -16,15 +17,17 @@ _KEYS = ('xyz', 'rgb', 'semantic', 'embedding')
 
 
 def write_npz(path: str | Path, cloud: FruitPointCloud, labels: np.ndarray | None = None) -> Path:
-    """Write ``cloud`` (+ optional [N] int32 ``labels``) compressed; atomic. Arrays: xyz, rgb, semantic, embedding."""
+    """Write ``cloud`` (+ optional [N] int32 ``labels``) compressed; atomic. Arrays: xyz, rgb, semantic, embedding
+    (+ labels, + spacing_m when known)."""
     path = Path(path)
     arrays = {'xyz': cloud.xyz, 'rgb': cloud.rgb, 'semantic': cloud.semantic, 'embedding': cloud.embedding,
               'format_version': np.int32(1)}
     if labels is not None:
         arrays['labels'] = np.asarray(labels, np.int32)
-    tmp = path.with_name(path.name + '.tmp.npz')
-    np.savez_compressed(tmp, **arrays)
-    tmp.replace(path)
+    if cloud.spacing_m is not None:
+        arrays['spacing_m'] = np.float64(cloud.spacing_m)
+    with atomic_path(path, suffix='.tmp.npz') as tmp:
+        np.savez_compressed(tmp, **arrays)
     return path
 
 
@@ -40,7 +43,8 @@ def read_npz(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
             missing = [k for k in _KEYS if k not in data]
             if missing:
                 raise ExportError(f'{path}: missing array(s) {", ".join(missing)}')
-            cloud = FruitPointCloud(*(np.asarray(data[k]) for k in _KEYS))
+            spacing = float(data['spacing_m']) if 'spacing_m' in data else None
+            cloud = FruitPointCloud(*(np.asarray(data[k]) for k in _KEYS), spacing_m=spacing)
             labels = np.asarray(data['labels']) if 'labels' in data else None
     except FileNotFoundError as err:
         raise ExportError(f'{path}: point cloud file not found') from err

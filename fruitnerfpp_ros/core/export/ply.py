@@ -10,11 +10,14 @@ from pathlib import Path
 
 import numpy as np
 
-from fruitnerfpp_ros.core.data.ply_io import PlyError, read_ply_vertices, write_ply_vertices
+from fruitnerfpp_ros.core.data.ply_io import PlyError, read_ply_comments, read_ply_vertices, write_ply_vertices
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.errors import ExportError
 
-__all__ = ['write_ply', 'read_ply']
+__all__ = ['write_ply', 'read_ply', 'SPACING_COMMENT']
+
+SPACING_COMMENT = 'spacing_m'
+"""Header comment ``spacing_m <metres>``: the export voxel of the cloud (see ``FruitPointCloud.spacing_m``)."""
 
 def _vertex_dtype(dim: int, with_labels: bool) -> np.dtype:
     fields = [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('red', 'u1'), ('green', 'u1'), ('blue', 'u1'),
@@ -40,8 +43,10 @@ def write_ply(path: str | Path, cloud: FruitPointCloud, labels: np.ndarray | Non
         vertices[f'emb_{i}'] = cloud.embedding[:, i]
     if labels is not None:
         vertices['cluster'] = labels
-    write_ply_vertices(path, vertices, comments=('fruitnerfpp_ros fruit point cloud',
-                                                 f'embedding_dim {cloud.embedding_dim}'))
+    comments = ['fruitnerfpp_ros fruit point cloud', f'embedding_dim {cloud.embedding_dim}']
+    if cloud.spacing_m is not None:
+        comments.append(f'{SPACING_COMMENT} {cloud.spacing_m!r}')
+    write_ply_vertices(path, vertices, comments=comments)
     return path
 
 
@@ -73,4 +78,15 @@ def read_ply(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
     embedding = (np.stack([v[n] for n in emb_names], 1).astype(np.float32) if emb_names
                  else np.zeros((n_vertices, 0), np.float32))
     labels = v['cluster'].astype(np.int32) if 'cluster' in names else None
-    return FruitPointCloud(xyz, rgb, semantic, embedding), labels
+    return FruitPointCloud(xyz, rgb, semantic, embedding, _spacing_from_comments(read_ply_comments(path))), labels
+
+
+def _spacing_from_comments(comments: list[str]) -> float | None:
+    for comment in comments:
+        words = comment.split()
+        if len(words) == 2 and words[0] == SPACING_COMMENT:
+            try:
+                return float(words[1])
+            except ValueError:
+                return None
+    return None

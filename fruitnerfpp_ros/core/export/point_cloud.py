@@ -18,12 +18,15 @@ class FruitPointCloud:
         rgb: [N, 3] uint8 colours.
         semantic: [N] float32 fruit probability in [0, 1].
         embedding: [N, D] float32 instance embeddings (L2-normalised).
+        spacing_m: the sampling grid's spacing (the export voxel, m) when known; clustering scales its cluster
+            sizes to it (``ClusterConfig.reference_spacing_m``). Saved in the PLY header and the .npz.
     """
 
     xyz: np.ndarray
     rgb: np.ndarray
     semantic: np.ndarray
     embedding: np.ndarray
+    spacing_m: float | None = None
 
     def __post_init__(self) -> None:
         n = len(self.xyz)
@@ -40,10 +43,10 @@ class FruitPointCloud:
         return int(self.embedding.shape[1])
 
     @classmethod
-    def empty(cls, embedding_dim: int) -> 'FruitPointCloud':
+    def empty(cls, embedding_dim: int, spacing_m: float | None = None) -> 'FruitPointCloud':
         return cls(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, np.float32),
-                   np.zeros((0, embedding_dim), np.float32))
+                   np.zeros((0, embedding_dim), np.float32), spacing_m)
 
     def subset(self, mask_or_index: np.ndarray) -> 'FruitPointCloud':
         return FruitPointCloud(self.xyz[mask_or_index], self.rgb[mask_or_index], self.semantic[mask_or_index],
-                               self.embedding[mask_or_index])
+                               self.embedding[mask_or_index], self.spacing_m)

@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from fruitnerfpp_ros.core.atomic_io import atomic_path
 from fruitnerfpp_ros.errors import CheckpointError
 
 __all__ = ['save_checkpoint', 'load_checkpoint']
@@ -16,13 +17,10 @@ __all__ = ['save_checkpoint', 'load_checkpoint']
 def save_checkpoint(state: dict[str, Any], path: str | Path) -> Path:
     """Write ``state`` with torch.save to ``path`` atomically (a crash leaves the previous file intact)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + '.tmp')
-    with open(tmp, 'wb') as f:
+    with atomic_path(path) as tmp, open(tmp, 'wb') as f:
         torch.save(state, f)
         f.flush()
         os.fsync(f.fileno())
-    os.replace(tmp, path)
     return path
 
 

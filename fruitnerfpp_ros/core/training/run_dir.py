@@ -7,6 +7,8 @@ import math
 from pathlib import Path
 from typing import Any
 
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
+
 __all__ = ['RunDir']
 
 
@@ -54,6 +56,4 @@ class RunDir:
     def truncate_metrics(self, keep_until_global_step: int) -> None:
         """Drop lines logged after ``keep_until_global_step`` (on resume, so no step is logged twice)."""
         lines = [r for r in self.read_metrics() if r.get('global_step', 0) <= keep_until_global_step]
-        tmp = self.metrics_path.with_name(self.metrics_path.name + '.tmp')
-        tmp.write_text(''.join(json.dumps(r) + '\n' for r in lines))
-        tmp.replace(self.metrics_path)
+        atomic_write_text(self.metrics_path, ''.join(json.dumps(r) + '\n' for r in lines))

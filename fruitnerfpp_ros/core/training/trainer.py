@@ -109,6 +109,11 @@ class TrainedScene:
     occupancy: OccupancyGrid
 
     @property
+    def march_step(self) -> float:
+        """Ray-marching step (m) of the scene box: the default export voxel size."""
+        return self.config.render.step_size(float(np.linalg.norm(self.aabb[1] - self.aabb[0])))
+
+    @property
     def surface_density(self) -> float:
         """Density threshold (1/m) separating surfaces from empty space, for the export.
 
@@ -117,8 +122,7 @@ class TrainedScene:
         fields such as the tiny preset's, whose fruit surfaces reach a few 1/m only).
         """
         diagonal = float(np.linalg.norm(self.aabb[1] - self.aabb[0]))
-        step = self.config.render.step_size(diagonal)
-        grid = float(torch.quantile(self.occupancy.values.float().cpu(), 0.9)) / step
+        grid = float(torch.quantile(self.occupancy.values.float().cpu(), 0.9)) / self.march_step
         return min(self.config.surface_density(diagonal), grid) if grid > 0 else self.config.surface_density(diagonal)
 
 

@@ -116,6 +116,24 @@ def test_bad_cloud_raises_clustering_error() -> None:
         count_fruits(xyz)  # type: ignore[arg-type]
 
 
+def test_cluster_sizes_follow_the_point_spacing() -> None:
+    """Sizes are given for 2 cm spacing; a finer export has ~(2 cm / s)^2 more points per fruit."""
+    config = ClusterConfig(min_cluster_size=15, min_samples=8, min_fruit_points=20, knn_k=24)
+    assert config.for_spacing(None) is config and config.for_spacing(0.02) == config
+    fine = config.for_spacing(0.01)
+    assert (fine.min_cluster_size, fine.min_samples, fine.min_fruit_points) == (60, 24, 80)  # min_samples <= knn_k
+    coarse = config.for_spacing(0.04)
+    assert (coarse.min_cluster_size, coarse.min_samples, coarse.min_fruit_points) == (4, 2, 5)
+    assert ClusterConfig(reference_spacing_m=None).for_spacing(0.01) == ClusterConfig(reference_spacing_m=None)
+    # count_fruits takes the spacing from the cloud: 8 fruits of ~50 points survive at 2 cm spacing, not at 5 mm
+    synth = make_fruit_cloud(400, 8, seed=3)
+    cloud = synth.cloud
+    at = {s: count_fruits(FruitPointCloud(cloud.xyz, cloud.rgb, cloud.semantic, cloud.embedding, spacing_m=s),
+                          ClusterConfig(n_jobs=1)) for s in (0.02, 0.005)}
+    assert at[0.02].count == 8 and at[0.02].stats['min_fruit_points'] == 20
+    assert at[0.005].count == 0 and at[0.005].stats['min_fruit_points'] == 320
+
+
 def test_config_rejects_impossible_values() -> None:
     with pytest.raises(ConfigError, match='lambda_e'):
         ClusterConfig(lambda_e=0.0)

@@ -52,6 +52,17 @@ def test_npz_round_trip(tmp_path: Path) -> None:
     np.testing.assert_array_equal(labels, synth.labels)
 
 
+def test_the_export_spacing_travels_with_the_cloud(tmp_path: Path) -> None:
+    """Counting a copied cloud file must scale cluster sizes like the pipeline did: the voxel is in the file."""
+    cloud = make_fruit_cloud(200, 2, dim=4, seed=2).cloud
+    spaced = FruitPointCloud(cloud.xyz, cloud.rgb, cloud.semantic, cloud.embedding, spacing_m=0.0143)
+    assert read_ply(write_ply(tmp_path / 'c.ply', spaced))[0].spacing_m == 0.0143
+    assert read_npz(write_npz(tmp_path / 'c.npz', spaced))[0].spacing_m == 0.0143
+    assert spaced.subset(np.arange(10)).spacing_m == 0.0143
+    assert read_ply(write_ply(tmp_path / 'n.ply', cloud))[0].spacing_m is None
+    assert read_npz(write_npz(tmp_path / 'n.npz', cloud))[0].spacing_m is None
+
+
 def test_read_errors_name_the_file(tmp_path: Path) -> None:
     with pytest.raises(ExportError, match='missing.ply: point cloud file not found'):
         read_ply(tmp_path / 'missing.ply')

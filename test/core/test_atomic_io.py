@@ -1,0 +1,25 @@
+"""Atomic writes: parent folders created, nothing left behind when the writer fails."""
+
+from pathlib import Path
+
+import pytest
+
+from fruitnerfpp_ros.core.atomic_io import atomic_path, atomic_write_text
+
+
+def test_write_creates_parents_and_replaces(tmp_path: Path) -> None:
+    target = tmp_path / 'a' / 'b' / 'counts.json'
+    atomic_write_text(target, 'one')
+    atomic_write_text(target, 'two', fsync=True)
+    assert target.read_text() == 'two'
+    assert [p.name for p in target.parent.iterdir()] == ['counts.json']
+
+
+def test_failed_writer_keeps_previous_file(tmp_path: Path) -> None:
+    target = tmp_path / 'cloud.ply'
+    target.write_text('previous')
+    with pytest.raises(RuntimeError), atomic_path(target) as tmp:
+        tmp.write_text('half')
+        raise RuntimeError('writer died')
+    assert target.read_text() == 'previous'
+    assert [p.name for p in tmp_path.iterdir()] == ['cloud.ply']
