@@ -4,9 +4,10 @@ Instead of raw density, a 1 cm voxel counts as surface when some training ray gi
 (weights are scale-free: W = 0.4 means "this voxel makes 40 % of that pixel's colour"). Voxels that pass W and
 fruit probability >= 0.9 are clustered and scored like `fruitnerfpp count` + `eval`.
 
-Usage: python bench/visibility_export_experiment.py RUN_DIR DATASET_DIR W [W ...]
+Usage: [VOXEL=0.01] python bench/visibility_export_experiment.py RUN_DIR DATASET_DIR W [W ...]
 Findings: docs/results/tiny_preset.md.
 """
+import os
 import sys
 
 import numpy as np
@@ -27,7 +28,7 @@ run, data = sys.argv[1], sys.argv[2]
 s = load_trained_scene(run, 'cpu'); ds = load_dataset(data)
 f = s.field; aabb = torch.as_tensor(s.aabb, dtype=torch.float32)
 diag = float((aabb[1]-aabb[0]).norm()); step = s.config.render.step_size(diag)
-vox = 0.01; res = torch.ceil((aabb[1]-aabb[0])/vox).long(); print('grid', res.tolist())
+vox = float(os.environ.get('VOXEL', '0.01')); res = torch.ceil((aabb[1]-aabb[0])/vox).long(); print('grid', res.tolist())
 maxw = torch.zeros(int(res.prod()))
 V, H, W = ds.images.shape[:3]
 for v in ds.train_indices.tolist():
@@ -51,7 +52,7 @@ for wt in [float(a) for a in sys.argv[3:]]:
     keep = (maxw[occ] >= wt) & (q.fruit_prob >= 0.9)
     cloud = FruitPointCloud(centres[keep].numpy().astype(np.float32), (q.rgb[keep].numpy()*255).astype(np.uint8),
                             q.fruit_prob[keep].numpy().astype(np.float32), q.embedding[keep].numpy().astype(np.float32))
-    res_ = count_fruits(cloud, ClusterConfig(n_jobs=1))
+    res_ = count_fruits(cloud, ClusterConfig(n_jobs=1), point_spacing_m=vox)
     m = evaluate_counts(res_.centers(), gt)
     print(f'W >= {wt}: points {len(cloud)}  count {res_.count}  precision {m.precision:.3f}  '
           f'recall {m.recall:.3f}  F1 {m.f1:.3f}')

@@ -130,7 +130,5 @@ class ClusterConfig:
         if spacing_m is None or self.reference_spacing_m is None or not spacing_m > 0:
             return self
         scale = (self.reference_spacing_m / spacing_m) ** 2
-        min_samples = min(self.knn_k, max(1, round(self.min_samples * scale)))
-        return dataclasses.replace(self, min_samples=min_samples,
-                                   min_cluster_size=max(2, round(self.min_cluster_size * scale)),
+        return dataclasses.replace(self, min_cluster_size=max(2, round(self.min_cluster_size * scale)),
                                    min_fruit_points=max(1, round(self.min_fruit_points * scale)))

@@ -110,5 +110,8 @@ def make_fruit_cloud(n_points: int, n_fruits: int, *, touching: bool = False, di
     emb /= np.linalg.norm(emb, axis=1, keepdims=True)
     n = len(xyz)
     rgb = np.tile(np.array([[200, 30, 30]], np.uint8), (n, 1))
-    cloud = FruitPointCloud(xyz.astype(np.float32), rgb, np.ones(n, np.float32), emb.astype(np.float32))
+    # the spacing of a grid export with the same number of points on a fruit's surface
+    spacing = float(np.sqrt(4.0 * np.pi * radius_m ** 2 / max(1.0, (n - n_clutter) / n_fruits)))
+    cloud = FruitPointCloud(xyz.astype(np.float32), rgb, np.ones(n, np.float32), emb.astype(np.float32),
+                            spacing_m=spacing)
     return SyntheticFruitCloud(cloud, labels.astype(np.int64), centers, radius_m)

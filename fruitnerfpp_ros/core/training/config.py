@@ -196,7 +196,10 @@ class TrainConfig:
                 render=RenderConfig(samples_per_ray=192, occupancy_resolution=48, occupancy_update_every=8,
                                     chunk_rays=4096),
                 geometry=GeometryStageConfig(iterations=600, batch_rays=640, lr=2e-2),
-                semantic=SemanticStageConfig(iterations=200, batch_rays=512, lr=5e-2, fruit_fraction=0.5),
+                # fruit_fraction 0.5 taught a fruit prior of 50 % (fruit is ~5 % of a view): fruit probability
+                # >= 0.9 spread over the canopy. 0.15 and 400 steps: held-out IoU 0.28 -> 0.56 / 0.50 / 0.30 on
+                # three seeds of the test scene (docs/results/tiny_preset.md).
+                semantic=SemanticStageConfig(iterations=400, batch_rays=512, lr=5e-2, fruit_fraction=0.15),
                 instance=InstanceStageConfig(iterations=600, groups=4, group_size=8, pixels_per_fruit=24, lr=3e-2),
                 checkpoint_every=100, log_every=25, eval_max_views=3)
         if name == 'paper':

@@ -121,9 +121,9 @@ def test_cluster_sizes_follow_the_point_spacing() -> None:
     config = ClusterConfig(min_cluster_size=15, min_samples=8, min_fruit_points=20, knn_k=24)
     assert config.for_spacing(None) is config and config.for_spacing(0.02) == config
     fine = config.for_spacing(0.01)
-    assert (fine.min_cluster_size, fine.min_samples, fine.min_fruit_points) == (60, 24, 80)  # min_samples <= knn_k
+    assert (fine.min_cluster_size, fine.min_samples, fine.min_fruit_points) == (60, 8, 80)  # min_samples is local
     coarse = config.for_spacing(0.04)
-    assert (coarse.min_cluster_size, coarse.min_samples, coarse.min_fruit_points) == (4, 2, 5)
+    assert (coarse.min_cluster_size, coarse.min_samples, coarse.min_fruit_points) == (4, 8, 5)
     assert ClusterConfig(reference_spacing_m=None).for_spacing(0.01) == ClusterConfig(reference_spacing_m=None)
     # count_fruits takes the spacing from the cloud: 8 fruits of ~50 points survive at 2 cm spacing, not at 5 mm
     synth = make_fruit_cloud(400, 8, seed=3)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -54,8 +55,8 @@ def test_npz_round_trip(tmp_path: Path) -> None:
 
 def test_the_export_spacing_travels_with_the_cloud(tmp_path: Path) -> None:
     """Counting a copied cloud file must scale cluster sizes like the pipeline did: the voxel is in the file."""
-    cloud = make_fruit_cloud(200, 2, dim=4, seed=2).cloud
-    spaced = FruitPointCloud(cloud.xyz, cloud.rgb, cloud.semantic, cloud.embedding, spacing_m=0.0143)
+    spaced = dataclasses.replace(make_fruit_cloud(200, 2, dim=4, seed=2).cloud, spacing_m=0.0143)
+    cloud = dataclasses.replace(spaced, spacing_m=None)
     assert read_ply(write_ply(tmp_path / 'c.ply', spaced))[0].spacing_m == 0.0143
     assert read_npz(write_npz(tmp_path / 'c.npz', spaced))[0].spacing_m == 0.0143
     assert spaced.subset(np.arange(10)).spacing_m == 0.0143
