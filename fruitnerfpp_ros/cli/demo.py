@@ -16,6 +16,16 @@ import numpy as np
 __all__ = ['register', 'run', 'render_instance_cloud']
 
 
+def _dot_radius(xyz: np.ndarray, scale: float) -> int:
+    """Half-width in pixels of a dot: ~0.45 x the median point spacing, 1-6 px."""
+    from scipy.spatial import cKDTree
+    if len(xyz) < 2:
+        return 1
+    sample = xyz[np.random.default_rng(0).choice(len(xyz), min(len(xyz), 5000), replace=False)]
+    spacing = float(np.median(cKDTree(sample).query(sample, k=2)[0][:, 1]))
+    return int(np.clip(round(0.45 * spacing * scale), 1, 6))
+
+
 def render_instance_cloud(xyz: np.ndarray, labels: np.ndarray, path: str | Path, size: int = 480) -> Path:
     """PNG of a fruit cloud coloured by instance id (grey = noise): front (x-z) and top (x-y) orthographic views.
 
@@ -42,8 +52,9 @@ def render_instance_cloud(xyz: np.ndarray, labels: np.ndarray, path: str | Path,
             uv[:, 1] = size - 1 - uv[:, 1]
             order = np.argsort(labels > 0, kind='stable')  # noise first, fruit drawn over it
             uv, bgr = uv[order], colours[order][:, ::-1]
-            for dv in (-1, 0, 1):  # 3x3 dots
-                for du in (-1, 0, 1):
+            r = _dot_radius(xyz, scale)
+            for dv in range(-r, r + 1):  # square dots about as wide as the point spacing
+                for du in range(-r, r + 1):
                     canvas[np.clip(uv[:, 1] + dv, 0, size - 1), np.clip(uv[:, 0] + du, 0, size - 1)] = bgr
         views.append(canvas)
     image = np.concatenate([views[0], np.full((size, 4, 3), 0, np.uint8), views[1]], axis=1)
