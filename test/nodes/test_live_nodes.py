@@ -227,8 +227,10 @@ def test_orchard_sim_to_fruit_counter_counts_within_10_percent(graph: Graph, tmp
     assert answer.success, answer.message
     again = graph.call(train, timeout_s=5.0)  # the executor keeps serving while training runs
     assert not again.success and 'already running' in again.message
-    wait_for(lambda: 'fruit_count' in received and 'fruit_cloud' in received or counter.state == 'error', 2400,
-             'the count')  # tiny preset: ~2 min alone on 2 cores, far longer on a loaded machine
+    # the node publishes the results, then marks the run done: wait for both (tiny preset: ~2 min alone on 2 cores,
+    # far longer on a loaded machine)
+    wait_for(lambda: ('fruit_count' in received and 'fruit_cloud' in received and counter.state == 'done')
+             or counter.state == 'error', 2400, 'the count')
     assert counter.state == 'done', counter.last_error
     count = received['fruit_count'].data
     points = points_from_cloud_msg(received['fruit_cloud'])
