@@ -23,6 +23,7 @@ from fruitnerfpp_ros.core.clustering.graph import nearest_labels
 from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_job, cluster_partition, worker_init
 from fruitnerfpp_ros.core.clustering.merge import keep_owned_clusters, merge_close_centers, merge_clusters
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
+from fruitnerfpp_ros.core.clustering.split import split_oversized
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ClusteringError
@@ -201,6 +202,7 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
     if np.any(labels >= 0):
         sizes = np.bincount(labels[labels >= 0])
         labels = np.where((labels >= 0) & (sizes[np.maximum(labels, 0)] >= config.min_fruit_points), labels, -1)
+    labels, n_split = split_oversized(xyz, emb, labels, config)
     final_labels, fruits = fruits_from_labels(xyz, labels)
     t_end = time.perf_counter()
     exact = [r[1] for r in results]
@@ -208,7 +210,7 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         'n_clustered': n_sub, 'partitions': len(parts.members), 'min_cluster_size_used': min_cluster_size,
         'parallel_jobs': n_jobs if parallel else 1,
         'clusters_before_merge': clusters_before_merge,
-        'clusters_before_size_filter': clusters_before_filter,
+        'clusters_before_size_filter': clusters_before_filter, 'clusters_split': n_split,
         'noise_points': int(np.count_nonzero(final_labels == 0)),
         'graph_exact_fraction': float(np.mean(exact)) if exact else 1.0,
         'time_partition_s': t_part - t0, 'time_hdbscan_s': t_hdb - t_part, 'time_assign_s': t_assign - t_hdb,

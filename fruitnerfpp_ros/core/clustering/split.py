@@ -1,0 +1,66 @@
+"""Second look at oversized clusters: a cluster much wider than the orchard's typical fruit is several fruits.
+
+HDBSCAN's excess-of-mass selection keeps two touching fruits as one cluster when their joint cluster is more
+persistent than the two halves, even with clearly different embeddings. Fruits of one orchard are alike in size,
+so a cluster wider than ``split_diameter_factor`` times the median cluster diameter is clustered again on its own
+with leaf selection (which prefers the finer clusters); the split is kept when it finds at least two fruits.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_partition
+
+__all__ = ['cluster_diameters', 'split_oversized']
+
+
+def cluster_diameters(xyz: np.ndarray, labels: np.ndarray) -> dict[int, float]:
+    """Diameter (m) of every cluster label >= 0: twice the 90th percentile distance to its median centre."""
+    out = {}
+    for label in np.unique(labels[labels >= 0]):
+        p = xyz[labels == label].astype(np.float64)
+        centre = np.median(p, axis=0)
+        out[int(label)] = 2.0 * float(np.percentile(np.linalg.norm(p - centre, axis=1), 90.0)) if len(p) > 1 else 0.0
+    return out
+
+
+def split_oversized(xyz: np.ndarray, embedding: np.ndarray, labels: np.ndarray, config: ClusterConfig,
+                    ) -> tuple[np.ndarray, int]:
+    """Re-cluster clusters wider than ``config.split_diameter_factor`` x the median cluster diameter.
+
+    Args:
+        xyz: [N, 3] positions (m); embedding: [N, D] unit embeddings.
+        labels: [N] cluster labels, 0-based, -1 = noise.
+        config: the (spacing-scaled) clustering settings.
+
+    Returns:
+        (new labels, 0-based with -1 = noise; number of clusters that were split).
+    """
+    if config.split_diameter_factor <= 0:
+        return labels, 0
+    diameters = cluster_diameters(xyz, labels)
+    if len(diameters) < 3:  # no meaningful "typical fruit"
+        return labels, 0
+    limit = config.split_diameter_factor * float(np.median(list(diameters.values())))
+    leaf = dataclasses.replace(config, cluster_selection_method='leaf')
+    out, next_label, n_split = labels.copy(), int(labels.max()) + 1, 0
+    for label, diameter in diameters.items():
+        members = np.flatnonzero(labels == label)
+        if diameter <= limit or len(members) < 2 * config.min_fruit_points:
+            continue
+        local, _ = cluster_partition(xyz[members], embedding[members], leaf, min_cluster_size=config.min_cluster_size)
+        sizes = np.bincount(local[local >= 0]) if np.any(local >= 0) else np.zeros(0, np.int64)
+        parts = np.flatnonzero(sizes >= config.min_fruit_points)
+        if len(parts) < 2:
+            continue
+        new = np.full(len(members), -1, np.int64)
+        for part in parts:
+            new[local == part] = next_label
+            next_label += 1
+        out[members] = new
+        n_split += 1
+    return out, n_split
