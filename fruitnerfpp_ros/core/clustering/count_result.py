@@ -7,7 +7,15 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['Fruit', 'CountResult']
+__all__ = ['Fruit', 'CountResult', 'fruit_diameter']
+
+
+def fruit_diameter(points: np.ndarray, center: np.ndarray) -> float:
+    """Diameter (m) of a fruit's points [N, 3]: twice the 90th percentile distance to its ``center`` (robust
+    to stray points); 0 for a single point."""
+    if len(points) < 2:
+        return 0.0
+    return 2.0 * float(np.percentile(np.linalg.norm(np.asarray(points, np.float64) - center, axis=1), 90.0))
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit, fruit_diameter
 from fruitnerfpp_ros.core.clustering.graph import nearest_labels
 from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_job, cluster_partition, worker_init
 from fruitnerfpp_ros.core.clustering.merge import keep_owned_clusters, merge_close_centers, merge_clusters
@@ -101,9 +101,9 @@ def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
         p = xyz[g].astype(np.float64)
         center = centers[g_index]
         lo, hi = np.percentile(p, [2.0, 98.0], axis=0)
-        radius = float(np.percentile(np.linalg.norm(p - center, axis=1), 90.0)) if len(g) > 1 else 0.0
         out[g] = new_id
-        fruits.append(Fruit(id=new_id, center=center, diameter_m=2.0 * radius, extent_m=hi - lo, n_points=len(g)))
+        fruits.append(Fruit(id=new_id, center=center, diameter_m=fruit_diameter(p, center), extent_m=hi - lo,
+                            n_points=len(g)))
     return out, fruits
 
 

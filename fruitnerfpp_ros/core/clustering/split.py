@@ -13,18 +13,18 @@ import dataclasses
 import numpy as np
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.count_result import fruit_diameter
 from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_partition
 
 __all__ = ['cluster_diameters', 'split_oversized']
 
 
 def cluster_diameters(xyz: np.ndarray, labels: np.ndarray) -> dict[int, float]:
-    """Diameter (m) of every cluster label >= 0: twice the 90th percentile distance to its median centre."""
+    """Diameter (m, :func:`fruit_diameter` about the median centre) of every cluster label >= 0."""
     out = {}
     for label in np.unique(labels[labels >= 0]):
-        p = xyz[labels == label].astype(np.float64)
-        centre = np.median(p, axis=0)
-        out[int(label)] = 2.0 * float(np.percentile(np.linalg.norm(p - centre, axis=1), 90.0)) if len(p) > 1 else 0.0
+        p = xyz[labels == label]
+        out[int(label)] = fruit_diameter(p, np.median(p, axis=0))
     return out
 
 

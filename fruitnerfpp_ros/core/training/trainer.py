@@ -121,9 +121,9 @@ class TrainedScene:
         the 90th percentile of the occupancy grid's densities (right for briefly trained, semi-transparent
         fields such as the tiny preset's, whose fruit surfaces reach a few 1/m only).
         """
-        diagonal = float(np.linalg.norm(self.aabb[1] - self.aabb[0]))
+        opaque = self.config.surface_density(float(np.linalg.norm(self.aabb[1] - self.aabb[0])))
         grid = float(torch.quantile(self.occupancy.values.float().cpu(), 0.9)) / self.march_step
-        return min(self.config.surface_density(diagonal), grid) if grid > 0 else self.config.surface_density(diagonal)
+        return min(opaque, grid) if grid > 0 else opaque
 
 
 def build_scene_box(dataset: SceneDataset, config: TrainConfig) -> np.ndarray:
