@@ -72,16 +72,19 @@ def aabb_from_cameras(T_world_camera: np.ndarray, intrinsics: np.ndarray, width:
     hi = np.maximum(centres.max(0), focus + reach)
     ticks = [np.linspace(lo[i], hi[i], grid) for i in range(3)]
     points = np.stack(np.meshgrid(*ticks, indexing='ij'), -1).reshape(-1, 3)
-    R = T[:, :3, :3]
-    cam = np.einsum('vji,vnj->vni', R, points[None] - centres[:, None])  # world -> camera (R^T (p - c))
-    depth = -cam[..., 2]
-    safe = np.where(depth > 1e-6, depth, 1.0)
-    u = K[:, None, 0] * cam[..., 0] / safe + K[:, None, 2]
-    v = -K[:, None, 1] * cam[..., 1] / safe + K[:, None, 3]
-    seen = (depth > 1e-6) & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
-    keep = seen.mean(0) >= min_view_fraction
+    # views that see each candidate point, one view at a time (a [V, N] array is ~2 GB for 300 keyframes)
+    seen_by = np.zeros(len(points), np.int32)
+    for R, c, (fx, fy, cx, cy) in zip(T[:, :3, :3], centres, K):
+        cam = (points - c) @ R  # world -> camera: R^T (p - c)
+        depth = -cam[:, 2]
+        safe = np.where(depth > 1e-6, depth, 1.0)
+        u = fx * cam[:, 0] / safe + cx
+        v = -fy * cam[:, 1] / safe + cy
+        seen_by += (depth > 1e-6) & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
+    fraction = seen_by / len(T)
+    keep = fraction >= min_view_fraction
     if not keep.any():
-        keep = seen.mean(0) >= seen.mean(0).max()
+        keep = fraction >= fraction.max()
     kept = points[keep]
     step = (hi - lo) / (grid - 1)
     box = np.stack([kept.min(0) - step, kept.max(0) + step])
