@@ -2,7 +2,7 @@
 
 The grid is streamed in batches through the field on its own device, so memory grows with the kept points, not
 with the grid. A coarse pass (every ``coarse_factor``-th sample) first marks where dense fruit can be; only the
-fine samples near marked coarse samples are evaluated. When the field offers ``geometry`` and ``semantic_logit``
+fine samples near marked coarse samples are evaluated. When the field offers ``density_and_fruit_prob``
 (the FruitNeRF++ field does), density and fruit probability are computed first and the colour and instance heads
 run only on the kept points. An :class:`ExportReport` counts the samples passing each threshold, so an empty
 cloud says which threshold removed what.
@@ -152,12 +152,12 @@ def _field_device(field: QueryableField) -> torch.device:
 
 
 def _density_and_fruit(field: QueryableField, xyz: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Density [N] and fruit probability [N], through the cheap heads when the field exposes them."""
-    geometry = getattr(field, 'geometry', None)
-    semantic_logit = getattr(field, 'semantic_logit', None)
-    if callable(geometry) and callable(semantic_logit):
-        geo = geometry(xyz)
-        return geo.density.float(), torch.sigmoid(semantic_logit(geo.features)).float()
+    """Density [N] and fruit probability [N], through the cheap heads (``density_and_fruit_prob``: no colour, no
+    embedding) when the field has them, else through ``query``."""
+    cheap = getattr(field, 'density_and_fruit_prob', None)
+    if callable(cheap):
+        density, fruit_prob = cheap(xyz)
+        return density.float(), fruit_prob.float()
     q = field.query(xyz)
     return q.density.float(), q.fruit_prob.float()
 
