@@ -7,7 +7,27 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ['Fruit', 'CountResult', 'fruit_diameter']
+__all__ = ['Fruit', 'CountResult', 'fruit_diameter', 'label_groups']
+
+
+def label_groups(labels: np.ndarray, index: np.ndarray | None = None) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Group points by cluster label (labels < 0 are noise and left out), with one sort.
+
+    Args:
+        labels: [N] cluster labels.
+        index: [N] what to put in the groups (default: the positions 0..N-1).
+
+    Returns:
+        (the K labels present, ascending; K arrays of ``index`` values, one per label, in input order).
+    """
+    valid = labels >= 0
+    if not np.any(valid):
+        return np.zeros(0, labels.dtype), []
+    order = np.argsort(labels[valid], kind='stable')
+    points = (np.flatnonzero(valid) if index is None else np.asarray(index)[valid])[order]
+    sorted_labels = labels[valid][order]
+    starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]])
+    return sorted_labels[starts], np.split(points, starts[1:])
 
 
 def fruit_diameter(points: np.ndarray, center: np.ndarray) -> float:

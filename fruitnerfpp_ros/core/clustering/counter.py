@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit, fruit_diameter
+from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit, fruit_diameter, label_groups
 from fruitnerfpp_ros.core.clustering.graph import nearest_labels
 from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_job, cluster_partition, worker_init
 from fruitnerfpp_ros.core.clustering.merge import keep_owned_clusters, merge_close_centers, merge_clusters
@@ -85,14 +85,9 @@ def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
         ([N] int32 labels with ids 1..K and 0 = noise, the K fruits in id order).
     """
     out = np.zeros(len(xyz), np.int32)
-    valid = labels >= 0
-    if not np.any(valid):
+    _, groups = label_groups(labels)
+    if not groups:
         return out, []
-    order = np.argsort(labels[valid], kind='stable')
-    points = np.flatnonzero(valid)[order]
-    sorted_labels = labels[valid][order]
-    starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]])
-    groups = np.split(points, starts[1:])
     centers = np.array([np.median(xyz[g], axis=0) for g in groups], np.float64)
     rank = np.lexsort((centers[:, 2], centers[:, 1], centers[:, 0]))
     fruits = []

@@ -12,6 +12,7 @@ import scipy.sparse
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from fruitnerfpp_ros.core.clustering.count_result import label_groups
 from fruitnerfpp_ros.core.clustering.partitions import assign_to_cells
 
 __all__ = ['keep_owned_clusters', 'merge_clusters', 'merge_close_centers']
@@ -31,14 +32,9 @@ def keep_owned_clusters(xyz: np.ndarray, members: np.ndarray, local_labels: np.n
     Returns:
         One sorted index array (into ``xyz``) per kept cluster.
     """
-    valid = local_labels >= 0
-    if not np.any(valid):
+    _, groups = label_groups(local_labels, members)
+    if not groups:
         return []
-    order = np.argsort(local_labels[valid], kind='stable')
-    points = members[valid][order]
-    labels = local_labels[valid][order]
-    starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
-    groups = np.split(points, starts[1:])
     medians = np.array([np.median(xyz[g], axis=0) for g in groups])
     owned = assign_to_cells(medians, centers) == partition if len(centers) > 1 else np.ones(len(groups), bool)
     return [np.sort(g) for g, keep in zip(groups, owned) if keep]
@@ -97,12 +93,8 @@ def merge_close_centers(xyz: np.ndarray, labels: np.ndarray, distance_m: float) 
     if distance_m <= 0 or not np.any(valid):
         return labels
     n_clusters = int(labels.max()) + 1
-    order = np.argsort(labels[valid], kind='stable')
-    points = np.flatnonzero(valid)[order]
-    sorted_labels = labels[valid][order]
-    starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]])
-    ids = sorted_labels[starts]
-    centers = np.array([np.median(xyz[g], axis=0) for g in np.split(points, starts[1:])])
+    ids, groups = label_groups(labels)
+    centers = np.array([np.median(xyz[g], axis=0) for g in groups])
     pairs = cKDTree(centers).query_pairs(distance_m, output_type='ndarray')
     if len(pairs) == 0:
         return labels

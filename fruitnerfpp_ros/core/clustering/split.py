@@ -13,18 +13,19 @@ import dataclasses
 import numpy as np
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.clustering.count_result import fruit_diameter
+from fruitnerfpp_ros.core.clustering.count_result import fruit_diameter, label_groups
 from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_partition
 
 __all__ = ['cluster_diameters', 'split_oversized']
 
 
-def cluster_diameters(xyz: np.ndarray, labels: np.ndarray) -> dict[int, float]:
-    """Diameter (m, :func:`fruit_diameter` about the median centre) of every cluster label >= 0."""
+def cluster_diameters(xyz: np.ndarray, labels: np.ndarray) -> dict[int, tuple[float, np.ndarray]]:
+    """Per cluster label >= 0: its diameter (m, :func:`fruit_diameter` about the median centre) and its points."""
+    ids, groups = label_groups(labels)
     out = {}
-    for label in np.unique(labels[labels >= 0]):
-        p = xyz[labels == label]
-        out[int(label)] = fruit_diameter(p, np.median(p, axis=0))
+    for label, members in zip(ids, groups):
+        p = xyz[members]
+        out[int(label)] = (fruit_diameter(p, np.median(p, axis=0)), members)
     return out
 
 
@@ -45,11 +46,10 @@ def split_oversized(xyz: np.ndarray, embedding: np.ndarray, labels: np.ndarray, 
     diameters = cluster_diameters(xyz, labels)
     if len(diameters) < 3:  # no meaningful "typical fruit"
         return labels, 0
-    limit = config.split_diameter_factor * float(np.median(list(diameters.values())))
+    limit = config.split_diameter_factor * float(np.median([d for d, _ in diameters.values()]))
     leaf = dataclasses.replace(config, cluster_selection_method='leaf')
     out, next_label, n_split = labels.copy(), int(labels.max()) + 1, 0
-    for label, diameter in diameters.items():
-        members = np.flatnonzero(labels == label)
+    for diameter, members in diameters.values():
         if diameter <= limit or len(members) < 2 * config.min_fruit_points:
             continue
         local, _ = cluster_partition(xyz[members], embedding[members], leaf, min_cluster_size=config.min_cluster_size)
