@@ -51,8 +51,9 @@ gt = load_ground_truth(f'{data}/gt_fruits.json')
 for wt in [float(a) for a in sys.argv[3:]]:
     keep = (maxw[occ] >= wt) & (q.fruit_prob >= 0.9)
     cloud = FruitPointCloud(centres[keep].numpy().astype(np.float32), (q.rgb[keep].numpy()*255).astype(np.uint8),
-                            q.fruit_prob[keep].numpy().astype(np.float32), q.embedding[keep].numpy().astype(np.float32))
-    res_ = count_fruits(cloud, ClusterConfig(n_jobs=1), point_spacing_m=vox)
+                            q.fruit_prob[keep].numpy().astype(np.float32), q.embedding[keep].numpy().astype(np.float32),
+                            spacing_m=vox)
+    res_ = count_fruits(cloud, ClusterConfig(n_jobs=1))
     m = evaluate_counts(res_.centers(), gt)
     print(f'W >= {wt}: points {len(cloud)}  count {res_.count}  precision {m.precision:.3f}  '
           f'recall {m.recall:.3f}  F1 {m.f1:.3f}')

@@ -103,14 +103,13 @@ def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
 
 
 def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
-                 point_spacing_m: float | None = None, progress: ProgressCallback | None = None) -> CountResult:
+                 progress: ProgressCallback | None = None) -> CountResult:
     """Cluster a fruit point cloud into fruits with the paper's multi-modal metric.
 
     Args:
         cloud: the exported fruit points (xyz in m, unit embeddings).
-        config: clustering settings (defaults when None).
-        point_spacing_m: the cloud's point spacing (m) to scale the cluster sizes to
-            (:meth:`ClusterConfig.for_spacing`); None: ``cloud.spacing_m`` (the export voxel, when known).
+        config: clustering settings (defaults when None); its cluster sizes are scaled to ``cloud.spacing_m`` (the
+            export voxel) when known (:meth:`ClusterConfig.for_spacing`).
         progress: receives ``cluster`` phase events (one per partition).
 
     Returns:
@@ -121,13 +120,11 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         ClusteringError: on a malformed cloud (NaN, no embedding).
     """
     _validate(cloud)
-    if point_spacing_m is None:
-        point_spacing_m = cloud.spacing_m
-    config = (config or ClusterConfig()).for_spacing(point_spacing_m)
+    config = (config or ClusterConfig()).for_spacing(cloud.spacing_m)
     progress = progress or ignore_progress
     n = len(cloud)
     stats: dict[str, Any] = {'n_points': n, 'metric': config.metric, 'lambda_c': config.lambda_c,
-                             'lambda_e': config.lambda_e, 'point_spacing_m': point_spacing_m,
+                             'lambda_e': config.lambda_e, 'point_spacing_m': cloud.spacing_m,
                              'min_samples': config.min_samples, 'min_fruit_points': config.min_fruit_points}
     if n == 0:
         stats['note'] = 'empty fruit point cloud: nothing to count'
