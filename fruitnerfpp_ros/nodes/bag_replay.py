@@ -187,20 +187,16 @@ def write_results_mcap(path: str | Path, messages: list[tuple[str, str, Any]], s
 
 
 def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSettings = CounterSettings(), *,
-               preset: str | None = None, device: str | None = None, train: bool = True,
-               progress: ProgressCallback | None = None, log: LogFunction = _print_log,
+               train: bool = True, progress: ProgressCallback | None = None, log: LogFunction = _print_log,
                stop_event: threading.Event | None = None, show_progress: bool = False,
-               train_config: Any = None, skip_training: bool = False) -> ReplayResult:
+               skip_training: bool = False) -> ReplayResult:
     """Collect keyframes from a bag, then train, count and write the outputs into ``run_dir``.
 
     Args:
         bag_path: rosbag2 directory (sqlite3 or MCAP) or a single .mcap / .db3 file.
         run_dir: output directory (created).
-        settings: topics, pose source, keyframe selection, preset (see ``config/fruit_counter.yaml``).
-        preset: overrides ``settings.preset``.
-        device: overrides ``settings.device``.
+        settings: topics, pose source, keyframe selection, preset, device (see ``config/fruit_counter.yaml``).
         train: False stops after collecting keyframes.
-        train_config: a TrainConfig overriding the preset (tests, tools).
         skip_training: reuse the model already trained in ``run_dir`` (re-export and recount only).
 
     Raises:
@@ -232,12 +228,12 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
         raise BagError(f'{bag_path}: only {n_keyframes} keyframe(s), fewer than min_keyframes='
                        f'{settings.min_keyframes}')
     from fruitnerfpp_ros.core.pipeline import run_pipeline
-    configs = pipeline_configs(settings, preset=preset)
+    configs = pipeline_configs(settings)
     for warning in configs.warnings:
         log('warn', warning)
-    result = run_pipeline(keyframes_dir, run_dir, train_config=train_config or configs.train,
+    result = run_pipeline(keyframes_dir, run_dir, train_config=configs.train,
                           export_config=configs.export, cluster_config=configs.cluster,
-                          device=device or settings.device, progress=progress, stop_event=stop_event,
+                          device=settings.device, progress=progress, stop_event=stop_event,
                           show_progress=show_progress, skip_training=skip_training)
     if result.stopped:
         raise BagError(f'{bag_path}: replay stopped before the count; the keyframes stay in {keyframes_dir}')

@@ -30,10 +30,7 @@ from fruitnerfpp_ros.nodes.params import CounterSettings
 from fruitnerfpp_ros.nodes.tf_buffer import TfBuffer, TfFutureError, TfLookupError
 from fruitnerfpp_ros.nodes.time_sync import ApproximateTimeSynchronizer, SyncedSet
 
-__all__ = ['ROLES', 'LogFunction', 'FrameAssembler', 'ThrottledLog']
-
-#: Message roles the assembler understands.
-ROLES = ('image', 'mask', 'pose', 'odometry', 'camera_info', 'tf', 'tf_static')
+__all__ = ['LogFunction', 'FrameAssembler', 'ThrottledLog']
 
 #: ``log(level, message)`` with level ``info`` / ``warn`` / ``error``.
 LogFunction = Callable[[str, str], None]

@@ -161,7 +161,7 @@ class PipelineConfigs(NamedTuple):
     warnings: tuple[str, ...]
 
 
-def pipeline_configs(settings: CounterSettings, *, preset: str | None = None) -> PipelineConfigs:
+def pipeline_configs(settings: CounterSettings) -> PipelineConfigs:
     """TrainConfig (preset + ``config_file`` 'train' overrides), ExportConfig and ClusterConfig of the settings.
 
     Raises:
@@ -171,10 +171,10 @@ def pipeline_configs(settings: CounterSettings, *, preset: str | None = None) ->
     from fruitnerfpp_ros.core.export.config import ExportConfig
     from fruitnerfpp_ros.core.training import TrainConfig
     warnings = []
-    name = preset or settings.preset
+    name = settings.preset
     if name == 'auto':
-        import torch
-        on_cuda = torch.cuda.is_available() and settings.device != 'cpu'
+        from fruitnerfpp_ros.core.device import resolve_device
+        on_cuda = resolve_device(settings.device).type == 'cuda'
         name = 'default' if on_cuda else 'tiny'
         if not on_cuda:
             warnings.append("preset 'auto' on the CPU: using the 'tiny' preset (fast, lower quality); "

@@ -16,7 +16,7 @@ from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.nodes.conversions import (cloud_msg_from_points, markers_from_fruits, pose_array_from_centers,
-                                               report_from_count, time_msg_from_ns, _json_default)
+                                               report_json, time_msg_from_ns)
 
 __all__ = ['OutputTopic', 'OUTPUT_TOPICS', 'DIAGNOSTICS_TOPIC', 'RESULTS_NODE_NAME', 'result_messages',
            'diagnostics_msg', 'write_report']
@@ -50,13 +50,12 @@ def result_messages(count: CountResult, cloud: FruitPointCloud, frame_id: str, s
                     extra: dict[str, Any] | None = None) -> dict[str, Any]:
     """rclpy messages of a count keyed by private topic name (see :data:`OUTPUT_TOPICS`)."""
     from std_msgs.msg import String, UInt32
-    report = report_from_count(count, frame_id, stamp_ns, run_id, extra)
     labels = np.asarray(count.labels)
     if len(labels) != len(cloud):
         labels = np.zeros(len(cloud), np.uint32)
     return {
         'fruit_count': UInt32(data=int(count.count)),
-        'fruit_report': String(data=json.dumps(report, default=_json_default)),
+        'fruit_report': String(data=report_json(count, frame_id, stamp_ns, run_id, extra)),
         'fruit_cloud': cloud_msg_from_points(cloud, labels, frame_id, stamp_ns),
         'fruit_centers': pose_array_from_centers(count.centers(), frame_id, stamp_ns),
         'fruit_markers': markers_from_fruits(count.fruits, frame_id, stamp_ns),

@@ -47,9 +47,6 @@ class TfBuffer:
         self.tolerance_ns = int(tolerance_ns)
         self._edges: dict[str, _Edge] = {}
 
-    def clear(self) -> None:
-        self._edges.clear()
-
     @property
     def frames(self) -> list[str]:
         """Every frame name known (parents and children)."""
