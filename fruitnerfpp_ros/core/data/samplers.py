@@ -37,9 +37,13 @@ class UniformPixelSampler:
             self._fruit_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
         self._fruit_fraction = fruit_fraction if len(self._fruit_pixels) else 0.0
 
+    def num_uniform(self, batch_size: int) -> int:
+        """How many of a ``batch_size`` batch are drawn uniformly: they come first, the fruit pixels after."""
+        return batch_size - int(round(batch_size * self._fruit_fraction))
+
     def sample(self, batch_size: int, generator: torch.Generator) -> PixelBatch:
-        n_fruit = int(round(batch_size * self._fruit_fraction))
-        n_uniform = batch_size - n_fruit
+        n_uniform = self.num_uniform(batch_size)
+        n_fruit = batch_size - n_uniform
         pick = torch.randint(len(self._views), (n_uniform,), generator=generator)
         flat = torch.randint(self._height * self._width, (n_uniform,), generator=generator)
         view, pixel = self._views[pick], flat

@@ -284,7 +284,7 @@ class _Session:
                               semantic=semantic, geometry_fn=self.geometry_fn)
             assert out.rgb is not None
             # colour is fitted on the uniformly drawn rays only (the fruit-biased part would skew the geometry)
-            n_uniform = len(view) - (int(round(len(view) * self.config.semantic.fruit_fraction)) if semantic else 0)
+            n_uniform = sampler.num_uniform(len(view))
             photo = photometric_loss(out.rgb[:n_uniform], self.images[view[:n_uniform], row[:n_uniform],
                                                                       col[:n_uniform]])
             loss = photo
