@@ -165,8 +165,8 @@ class FruitField(nn.Module):
         background can paint the whole scene and leave the geometry transparent.
         """
         sh = spherical_harmonics(directions, self.config.sh_degree)
-        if not self.config.background_sh:
-            sh = sh * torch.tensor([1.0] + [0.0] * (sh.shape[1] - 1), device=sh.device)
+        if not self.config.background_sh:  # the constant term only (no host-to-device copy per call)
+            sh = torch.cat([sh[:, :1], torch.zeros_like(sh[:, 1:])], dim=1)
         return torch.sigmoid(self.background(sh.to(self.background.weight.dtype)).float())
 
     def density_and_fruit_prob(self, xyz: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

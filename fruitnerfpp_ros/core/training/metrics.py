@@ -13,6 +13,7 @@ from fruitnerfpp_ros.core.data.rays import rays_for_pixels
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
 from fruitnerfpp_ros.core.rendering.renderer import RenderOutput, RenderSettings, render_rays
+from fruitnerfpp_ros.core.training.losses import fruit_prototypes
 
 __all__ = ['EvalMetrics', 'ViewRender', 'psnr_from_mse', 'semantic_iou', 'instance_assignment_accuracy',
            'render_view', 'evaluate_views']
@@ -66,8 +67,7 @@ def instance_assignment_accuracy(embedding: torch.Tensor, instance_mask: torch.T
         return 0, 0
     ids, labels = torch.unique(instance_mask[fruit], return_inverse=True)
     emb = embedding[fruit].float()
-    sums = emb.new_zeros(len(ids), emb.shape[1]).index_add(0, labels, emb)
-    prototypes = F.normalize(sums, dim=-1)
+    prototypes = fruit_prototypes(emb, labels, len(ids))
     nearest = torch.argmax(emb @ prototypes.T, dim=1)
     return int((nearest == labels).sum()), int(len(labels))
 
