@@ -25,7 +25,8 @@ def fruit_prototypes(embeddings: torch.Tensor, labels: torch.Tensor, num_fruits:
     return F.normalize(sums, dim=-1)
 
 
-def prototype_infonce(embeddings: torch.Tensor, labels: torch.Tensor, temperature: float) -> torch.Tensor:
+def prototype_infonce(embeddings: torch.Tensor, labels: torch.Tensor, temperature: float,
+                      num_fruits: int | None = None) -> torch.Tensor:
     """Prototype InfoNCE: each pixel against the mean embeddings of every fruit of the batch.
 
     L_j = -log( exp(<i_j, F_a(j)> / tau) / sum_a' exp(<i_j, F_a'> / tau) ), averaged over the pixels.
@@ -34,9 +35,11 @@ def prototype_infonce(embeddings: torch.Tensor, labels: torch.Tensor, temperatur
         embeddings: [N, D] rendered embeddings (normalised here).
         labels: [N] int64 batch-local fruit label in 0..F-1 (background pixels never enter).
         temperature: tau.
+        num_fruits: F when the caller knows it (saves reading ``labels`` back from the GPU).
     """
     unit = F.normalize(embeddings.float(), dim=-1)
-    num_fruits = int(labels.max()) + 1
+    if num_fruits is None:
+        num_fruits = int(labels.max()) + 1
     prototypes = fruit_prototypes(unit, labels, num_fruits)
     logits = unit @ prototypes.T / temperature
     return F.cross_entropy(logits, labels)

@@ -267,7 +267,7 @@ class _Session:
         """One optimisation step of the current stage; returns its logged values."""
         assert self.optimizer is not None
         lr = self.set_lr()
-        record: dict[str, float] = {'lr': lr}
+        scalars: dict[str, torch.Tensor] = {}  # read back once, after the step is queued (one GPU sync)
         if self.stage < 2:
             assert isinstance(sampler, UniformPixelSampler)
             cfg = self.stage_config(self.stage)
@@ -288,22 +288,23 @@ class _Session:
             photo = photometric_loss(out.rgb[:n_uniform], self.images[view[:n_uniform], row[:n_uniform],
                                                                       col[:n_uniform]])
             loss = photo
-            record['psnr'] = psnr_from_mse(float(photo.detach()))
+            scalars['photo'] = photo.detach()
             if self.config.geometry.distortion_weight > 0 and out.distortion is not None:
                 loss = loss + self.config.geometry.distortion_weight * out.distortion
-                record['distortion'] = float(out.distortion.detach())
+                scalars['distortion'] = out.distortion.detach()
             if semantic:
                 assert out.fruit_prob is not None
                 sem = semantic_loss(out.fruit_prob, self.semantics[view, row, col])
                 loss = loss + self.config.semantic.semantic_weight * sem
-                record['semantic_loss'] = float(sem.detach())
+                scalars['semantic_loss'] = sem.detach()
         else:
             out = render_rays(self.field, self.grid, rays, self.settings, jitter=jitter.to(self.device),
                               colour=False, instance=True, geometry_fn=self.geometry_fn)
             assert out.embedding is not None and pixels.fruit is not None
-            contr = prototype_infonce(out.embedding, pixels.fruit.to(self.device), self.config.instance.temperature)
+            contr = prototype_infonce(out.embedding, pixels.fruit.to(self.device), self.config.instance.temperature,
+                                      num_fruits=int(pixels.fruit.max()) + 1)
             loss = self.config.instance.contrastive_weight * contr
-            record['contrastive_loss'] = float(contr.detach())
+            scalars['contrastive_loss'] = contr.detach()
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
@@ -311,7 +312,12 @@ class _Session:
         self.global_step += 1
         if self.stage < 2 and self.step % self.config.render.occupancy_update_every == 0:
             self.grid.update(lambda xyz: self.geometry_fn(xyz).density, self.settings.step, self.generator)
-        record['loss'] = float(loss.detach())
+        scalars['loss'] = loss.detach()
+        values = dict(zip(scalars, torch.stack([v.float() for v in scalars.values()]).tolist()))
+        record: dict[str, float] = {'lr': lr}
+        if 'photo' in values:
+            record['psnr'] = psnr_from_mse(values.pop('photo'))
+        record.update(values)
         record['samples_per_ray'] = out.num_samples / max(len(view), 1)
         self.last_loss = record['loss']
         return record
