@@ -136,14 +136,10 @@ def load_yaml_mapping(path: str | Path, *, kind: str = 'config file') -> dict[st
     return dict(data)
 
 
-def load_config(cls: type[T], path: str | Path, *, section: str | None = None) -> T:
-    """Load ``cls`` from a YAML file, optionally from one top-level ``section`` of it."""
+def load_config(cls: type[T], path: str | Path) -> T:
+    """Load ``cls`` from a YAML file (a mapping of its fields)."""
     path = Path(path)
-    data: Any = load_yaml_mapping(path)
-    if section is not None:
-        data = data.get(section, {})
-    if not isinstance(data, Mapping):
-        raise ConfigError(f'{path}: expected a mapping, got {type(data).__name__}')
+    data = load_yaml_mapping(path)
     try:
         return config_from_mapping(cls, data)
     except ConfigError as err:

@@ -26,7 +26,6 @@ __all__ = [
     'quaternion_from_transform',
     'invert_transform',
     'interpolate_transform',
-    'is_valid_transform',
     'principal_point_ros_from_transforms',
     'principal_point_transforms_from_ros',
 ]
@@ -76,16 +75,6 @@ def interpolate_transform(T_a: np.ndarray, T_b: np.ndarray, fraction: float) -> 
     T[:3, :3] = Slerp([0.0, 1.0], rotations)([float(fraction)]).as_matrix()[0]
     T[:3, 3] = (1.0 - fraction) * T_a[:3, 3] + fraction * T_b[:3, 3]
     return T
-
-
-def is_valid_transform(T: np.ndarray, *, tolerance: float = 1e-3) -> bool:
-    """True when ``T`` is a finite 4x4 rigid transform (orthonormal rotation, last row 0 0 0 1)."""
-    T = np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        return False
-    R = T[:3, :3]
-    return bool(np.allclose(R @ R.T, np.eye(3), atol=tolerance) and abs(np.linalg.det(R) - 1.0) < tolerance
-                and np.allclose(T[3], [0.0, 0.0, 0.0, 1.0]))
 
 
 def principal_point_ros_from_transforms(cx: float, cy: float) -> tuple[float, float]:

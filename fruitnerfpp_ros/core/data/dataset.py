@@ -32,7 +32,6 @@ class SceneDataset:
         T_world_camera: [V, 4, 4] float32 camera-to-world poses, OpenGL camera axes, metres.
         train_indices: [V_train] int64 view indices used for training.
         eval_indices: [V_eval] int64 held-out view indices.
-        image_paths: relative RGB path of every view (for messages).
         ply_path: the sparse point cloud named by ``ply_file_path`` when it exists, else None.
     """
 
@@ -44,7 +43,6 @@ class SceneDataset:
     T_world_camera: torch.Tensor
     train_indices: torch.Tensor
     eval_indices: torch.Tensor
-    image_paths: tuple[str, ...]
     ply_path: Path | None
 
     @property
@@ -114,13 +112,10 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
     """
     dataset_dir = Path(dataset_dir)
     transforms: TransformsFile = read_transforms(dataset_dir)
-    images, instances, semantics, intrinsics, poses, paths = [], [], [], [], [], []
+    images, instances, semantics, intrinsics, poses = [], [], [], [], []
     shape: tuple[int, int] | None = None
     for index, frame in enumerate(transforms.frames):
         image_path = dataset_dir / frame.file_path
-        if not np.all(np.isfinite(frame.T_world_camera)):
-            raise DatasetError(f'{dataset_dir / "transforms.json"} frame {index} ({frame.file_path}): '
-                               'transform_matrix is not finite')
         rgb = _read_rgb(image_path)
         size = rgb.shape[:2]
         if shape is None:
@@ -156,22 +151,18 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
         semantics.append(semantic)
         intrinsics.append((cam.fl_x, cam.fl_y, cam.cx, cam.cy))
         poses.append(frame.T_world_camera)
-        paths.append(frame.file_path)
-    if not images:
-        raise DatasetError(f'{dataset_dir / "transforms.json"}: the dataset has no frames')
     train, held = split_indices(len(images), eval_every)
     ply_path = dataset_dir / transforms.ply_file_path if transforms.ply_file_path else None
     if ply_path is not None and not ply_path.is_file():
         ply_path = None
     return SceneDataset(
         dataset_dir=dataset_dir,
-        images=torch.from_numpy(np.stack(images).astype(np.float32)),
+        images=torch.from_numpy(np.stack(images)),  # _read_rgb gives float32
         instance_masks=torch.from_numpy(np.stack(instances)),
         semantic_masks=torch.from_numpy(np.stack(semantics)),
         intrinsics=torch.tensor(intrinsics, dtype=torch.float32),
         T_world_camera=torch.from_numpy(np.stack(poses).astype(np.float32)),
         train_indices=torch.from_numpy(train.astype(np.int64)),
         eval_indices=torch.from_numpy(held.astype(np.int64)),
-        image_paths=tuple(paths),
         ply_path=ply_path,
     )

@@ -17,7 +17,7 @@ image's top-left corner at (0, 0). Intrinsics are global keys, and a frame may o
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -48,10 +48,6 @@ class CameraIntrinsics:
     w: int
     h: int
     distortion: dict[str, float] = field(default_factory=dict)
-
-    def K(self) -> np.ndarray:
-        """3x3 intrinsic matrix (top-left-corner convention)."""
-        return np.array([[self.fl_x, 0.0, self.cx], [0.0, self.fl_y, self.cy], [0.0, 0.0, 1.0]])
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {'fl_x': self.fl_x, 'fl_y': self.fl_y, 'cx': self.cx, 'cy': self.cy,
@@ -133,9 +129,6 @@ class TransformsFile:
         if self.intrinsics is None:
             raise DatasetError(f'frame {index} ({self.frames[index].file_path}) has no intrinsics')
         return self.intrinsics
-
-    def with_frames(self, frames: list[FrameEntry]) -> 'TransformsFile':
-        return replace(self, frames=list(frames))
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = dict(self.extra)

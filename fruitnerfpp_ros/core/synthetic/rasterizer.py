@@ -27,7 +27,6 @@ _DEPTH_SCALE = float(2 ** 16)   # depth quantisation of the z-buffer key (1/6553
 _INDEX_BITS = 24
 _INDEX_MASK = (1 << _INDEX_BITS) - 1
 _MAX_PAIRS = 1 << 21            # (primitive, pixel) pairs per chunk
-_PIXELS_PER_THREAD = 1 << 40     # CPU: one torch thread per this many pixels (i.e. one thread)
 _SUN = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
 
 
@@ -220,17 +219,17 @@ class Renderer:
     # ------------------------------------------------------------------ rendering
     def render(self, T_world_camera: np.ndarray, K: CameraIntrinsics) -> ViewRender:
         """Render one view: camera-to-world pose (OpenGL axes, 4x4) and intrinsics (top-left-corner cx, cy)."""
-        with self._threads_for(K.w * K.h), torch.no_grad():
+        with self._one_cpu_thread(), torch.no_grad():
             return self._render(T_world_camera, K)
 
     @contextlib.contextmanager
-    def _threads_for(self, n_work: int) -> Iterator[None]:
-        """On the CPU, use fewer torch threads for small work: intra-op threading of small tensors costs more
-        than it gains, and on a busy machine (other jobs, CI) it is up to 10x slower than one thread, so the
-        default is one thread (``_PIXELS_PER_THREAD``). Restores the thread count afterwards."""
+    def _one_cpu_thread(self) -> Iterator[None]:
+        """On the CPU, render with one torch thread: intra-op threading of these per-view tensors costs more
+        than it gains, and on a busy machine (other jobs, CI) it is up to 10x slower. Restores the thread count
+        afterwards."""
         threads = torch.get_num_threads()
         if self.device.type == 'cpu':
-            torch.set_num_threads(max(1, min(threads, n_work // _PIXELS_PER_THREAD)))
+            torch.set_num_threads(1)
         try:
             yield
         finally:
@@ -401,7 +400,7 @@ class Renderer:
             (t [R] distance in units of ``dirs`` (inf = nothing or the ground/sky), instance [R] fruit id of the
             first primitive hit, 0 when it is not a fruit).
         """
-        with self._threads_for(len(origins) * 100), torch.no_grad():
+        with self._one_cpu_thread(), torch.no_grad():
             o_all = torch.as_tensor(origins, dtype=torch.float32, device=self.device)
             d_all = torch.as_tensor(dirs, dtype=torch.float32, device=self.device)
             n_rays = len(o_all)

@@ -14,7 +14,6 @@ near 2-5/m (or a multiple of the box median), with fruit_prob >= 0.9 doing most 
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 from dataclasses import field as _field
@@ -215,6 +214,3 @@ class TrainConfig:
                 checkpoint_every=2000, log_every=100)
         raise ConfigError(f'unknown training preset {name!r}; expected one of {", ".join(PRESET_NAMES)}')
 
-    def replace(self, **changes: object) -> 'TrainConfig':
-        """Copy with top-level fields replaced (nested configs: use config_io.replace_nested)."""
-        return dataclasses.replace(self, **changes)  # type: ignore[arg-type]
