@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from fruitnerfpp_ros.nodes.params import CounterSettings, load_parameter_file, settings_from_parameters
+if TYPE_CHECKING:
+    from fruitnerfpp_ros.nodes.params import CounterSettings
 
 __all__ = ['register', 'run', 'settings_from_args']
 
@@ -31,6 +33,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def settings_from_args(args: argparse.Namespace) -> CounterSettings:
     """Settings from the params file, with --preset / --device on top."""
+    from fruitnerfpp_ros.nodes.params import load_parameter_file, settings_from_parameters
+
     values = load_parameter_file(args.params) if args.params else {}
     if args.preset:
         values['preset'] = args.preset

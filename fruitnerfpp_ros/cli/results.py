@@ -145,14 +145,10 @@ def _run_eval(args: argparse.Namespace) -> int:
 
 
 def _run_pipeline(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.cli.train import resolve_train_config
     from fruitnerfpp_ros.core.pipeline import run_pipeline
-    from fruitnerfpp_ros.core.training import TrainConfig
 
-    train_config = TrainConfig.preset(args.preset)
-    if args.config is not None:
-        data = load_yaml_mapping(args.config)
-        if isinstance(data.get('train'), dict):
-            train_config = replace_nested(train_config, data['train'])
+    train_config = resolve_train_config(args.preset, args.config, section='train')
     result = run_pipeline(args.data_dir, args.out, train_config=train_config,
                           export_config=_export_config(args, args.config),
                           cluster_config=_cluster_config(args, args.config), device=args.device,

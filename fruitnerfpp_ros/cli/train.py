@@ -4,25 +4,36 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from fruitnerfpp_ros.core.config_io import load_yaml_mapping, replace_nested
-from fruitnerfpp_ros.core.training import PRESET_NAMES, TrainConfig, train
 from fruitnerfpp_ros.errors import ConfigError
+
+if TYPE_CHECKING:  # torch is imported only by the commands that train (``fruitnerfpp --help`` stays fast)
+    from fruitnerfpp_ros.core.training import TrainConfig
 
 __all__ = ['register', 'run', 'resolve_train_config']
 
 
-def resolve_train_config(preset: str, config_file: str | Path | None) -> TrainConfig:
+def resolve_train_config(preset: str, config_file: str | Path | None, *, section: str | None = None
+                         ) -> TrainConfig:
     """The preset, with the values of an optional YAML file (full or partial TrainConfig) applied on top.
+
+    ``section``: the file holds several configs and the TrainConfig values are under this key (``fruitnerfpp run
+    --config`` files: train / export / clustering); a file without it changes nothing.
 
     Raises:
         ConfigError: unknown preset, unreadable YAML or unknown key (naming the file).
     """
+    from fruitnerfpp_ros.core.training import TrainConfig
+
     config = TrainConfig.preset(preset)
     if config_file is None:
         return config
     path = Path(config_file)
     data = load_yaml_mapping(path)
+    if section is not None:
+        data = data[section] if isinstance(data.get(section), dict) else {}
     try:
         return replace_nested(config, data)
     except ConfigError as err:
@@ -30,6 +41,8 @@ def resolve_train_config(preset: str, config_file: str | Path | None) -> TrainCo
 
 
 def run(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.core.training import train
+
     config = resolve_train_config(args.preset, args.config)
     summary = train(args.dataset, args.out, config, device=args.device, resume=args.resume, show_progress=True)
     for stage in summary.stages:
@@ -44,8 +57,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    description=__doc__)
     parser.add_argument('dataset', metavar='DATA_DIR', help='dataset directory holding transforms.json')
     parser.add_argument('--out', required=True, metavar='RUN_DIR', help='run directory (config, checkpoints, metrics)')
-    parser.add_argument('--preset', choices=PRESET_NAMES, default='default',
-                        help='hyper-parameter preset (tiny: CPU tests, default: GPU, paper: long schedule)')
+    parser.add_argument('--preset', default='default',
+                        help='hyper-parameter preset: tiny (CPU tests), default (GPU), paper (long schedule)')
     parser.add_argument('--device', default='auto', help='auto, cpu or cuda[:N] (default: auto)')
     parser.add_argument('--resume', action='store_true', help='continue from RUN_DIR/checkpoints/latest.pt')
     parser.add_argument('--config', metavar='FILE.yaml', help='YAML with TrainConfig values overriding the preset')
