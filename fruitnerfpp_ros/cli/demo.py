@@ -104,7 +104,8 @@ def run(args: argparse.Namespace) -> int:
     settings = settings_from_parameters({'preset': args.preset, 'device': args.device})
     result = replay_bag(synth.bag_path, out / 'run', settings, show_progress=True)
     print('[3/3] comparing with the ground truth', flush=True)
-    metrics = evaluate_run(result.pipeline.paths.counts_json, synth.gt_path, out=out / 'run' / 'eval.json')
+    metrics = evaluate_run(result.pipeline.paths.counts_json, synth.gt_path, out=out / 'run' / 'eval.json',
+                           centers=result.count.centers())
     counted, visible = result.count.count, synth.n_fruits_visible
     error = 100.0 * (counted - visible) / max(visible, 1)
     print()

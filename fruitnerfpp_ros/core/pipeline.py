@@ -218,13 +218,17 @@ def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *,
 
 
 def evaluate_run(counts_json: str | Path, gt_json: str | Path, *, out: str | Path | None = None,
-                 tolerance: float = 1.0, exclude_unseen: bool = True) -> EvalMetrics:
+                 tolerance: float = 1.0, exclude_unseen: bool = True,
+                 centers: np.ndarray | None = None) -> EvalMetrics:
     """Score a ``counts.json`` against ``gt_fruits.json``; writes ``out`` (eval.json) when given.
+
+    ``centers``: the count's fruit centres [K, 3] when the caller holds them (then ``counts_json`` is only named
+    in eval.json, not read back).
 
     Raises:
         EvaluationError: missing / malformed files.
     """
-    pred = load_predicted_centers(counts_json)
+    pred = load_predicted_centers(counts_json) if centers is None else np.asarray(centers, np.float64).reshape(-1, 3)
     gt = load_ground_truth(gt_json)
     metrics = evaluate_counts(pred, gt, tolerance=tolerance, exclude_unseen=exclude_unseen)
     if out is not None:
@@ -278,7 +282,7 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
     gt_path = dataset_dir / GT_JSON
     if gt_path.is_file():
         eval_path = run_dir / EVAL_JSON
-        metrics = evaluate_run(counts_path, gt_path, out=eval_path)
+        metrics = evaluate_run(counts_path, gt_path, out=eval_path, centers=count.centers())
     paths = PipelineOutputs(run_dir / CLOUD_PLY, run_dir / CLOUD_NPZ, counts_path, run_dir / EXPORT_JSON, eval_path)
     return PipelineResult(run_dir, cloud, exported.report, count, metrics, paths,
                           stopped=exported.report.stopped, train_summary=summary)
