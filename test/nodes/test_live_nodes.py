@@ -29,6 +29,9 @@ from test.accuracy_targets import expect_accuracy
 pytestmark = pytest.mark.ros
 
 
+_LIVE_GRAPHS: list['Graph'] = []
+
+
 class Graph:
     """A private rclpy context with a multi-threaded executor spinning in a thread."""
 
@@ -39,12 +42,16 @@ class Graph:
         self.nodes: list[Node] = []
         self._thread = threading.Thread(target=self._spin, daemon=True)
         self._started = False
+        self._closing = False
+        self.error: BaseException | None = None  # what stopped the executor before close(): raised by wait_for
+        _LIVE_GRAPHS.append(self)
 
     def _spin(self) -> None:
         try:
             self.executor.spin()
-        except Exception:  # noqa: BLE001 - shutdown races
-            pass
+        except Exception as err:  # noqa: BLE001 - after close(), shutdown races are expected
+            if not self._closing:
+                self.error = err
 
     def add(self, node: Node) -> Node:
         self.nodes.append(node)
@@ -64,6 +71,8 @@ class Graph:
         return future.result()
 
     def close(self) -> None:
+        self._closing = True
+        _LIVE_GRAPHS.remove(self)
         for node in self.nodes:
             if isinstance(node, FruitCounterNode):
                 node.stop_training(timeout_s=30.0)
@@ -77,6 +86,9 @@ class Graph:
 def wait_for(predicate: Callable[[], bool], timeout_s: float, what: str) -> None:
     deadline = time.monotonic() + timeout_s
     while not predicate():
+        for graph in _LIVE_GRAPHS:
+            if graph.error is not None:
+                raise AssertionError(f'the executor stopped while waiting for {what}') from graph.error
         assert time.monotonic() < deadline, f'timed out after {timeout_s} s waiting for {what}'
         time.sleep(0.05)
 
