@@ -226,10 +226,9 @@ class FruitCounterNode(Node):
             configs = pipeline_configs(self.settings)
             for warning in configs.warnings:
                 self.get_logger().warning(warning)
-            dataset = self.store.snapshot(self.run_dir / 'datasets' / f'train_{index:03d}')
-            stamp_ns = max(f.stamp_ns or 0 for f in self.store.frames)
-            n_keyframes = len(self.store)
-            result = run_pipeline(dataset, self.run_dir / f'train_{index:03d}', train_config=configs.train,
+            snapshot = self.store.snapshot(self.run_dir / 'datasets' / f'train_{index:03d}')
+            stamp_ns, n_keyframes = snapshot.latest_stamp_ns, snapshot.n_keyframes  # what this run trains on
+            result = run_pipeline(snapshot.dataset_dir, self.run_dir / f'train_{index:03d}', train_config=configs.train,
                                   export_config=configs.export, cluster_config=configs.cluster,
                                   device=self.settings.device, progress=self._on_progress, stop_event=stop_event)
             if stop_event.is_set():

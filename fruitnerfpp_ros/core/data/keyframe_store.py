@@ -34,8 +34,8 @@ from fruitnerfpp_ros.core.data.transforms_format import (TRANSFORMS_NAME, Camera
 from fruitnerfpp_ros.core.geometry import opengl_from_optical, optical_from_opengl
 from fruitnerfpp_ros.errors import ConfigError, DatasetError
 
-__all__ = ['KeyframeConfig', 'Keyframe', 'KeyframeDecision', 'KeyframeStore', 'sharpness_from_image',
-           'motion_between']
+__all__ = ['KeyframeConfig', 'Keyframe', 'KeyframeDecision', 'KeyframeSnapshot', 'KeyframeStore',
+           'sharpness_from_image', 'motion_between']
 
 
 @dataclass(frozen=True)
@@ -78,6 +78,20 @@ class Keyframe(NamedTuple):
     instance: np.ndarray
     T_world_optical: np.ndarray
     intrinsics: CameraIntrinsics
+
+
+class KeyframeSnapshot(NamedTuple):
+    """A frozen dataset of the keyframes collected so far (see :meth:`KeyframeStore.snapshot`).
+
+    Attributes:
+        dataset_dir: the folder holding its transforms.json.
+        n_keyframes: keyframes in it.
+        latest_stamp_ns: newest keyframe stamp (0 when none has one).
+    """
+
+    dataset_dir: Path
+    n_keyframes: int
+    latest_stamp_ns: int
 
 
 class KeyframeDecision(str, Enum):
@@ -186,11 +200,12 @@ class KeyframeStore:
     def _transforms(self, frames: list[FrameEntry]) -> TransformsFile:
         return TransformsFile(self._intrinsics, frames, extra={'generator': 'fruitnerfpp_ros keyframes'})
 
-    def snapshot(self, dataset_dir: str | Path) -> Path:
+    def snapshot(self, dataset_dir: str | Path) -> KeyframeSnapshot:
         """Write a frozen transforms.json in ``dataset_dir`` that points at the current keyframes' files.
 
         Returns:
-            ``dataset_dir`` (a dataset the trainer can read while this store keeps growing).
+            The snapshot: a dataset the trainer can read while this store keeps growing, with the count and newest
+            stamp of exactly the keyframes it holds.
 
         Raises:
             DatasetError: when no keyframe has been collected.
@@ -206,7 +221,8 @@ class KeyframeStore:
                                  str(prefix / f.semantic_path) if f.semantic_path else None,
                                  f.intrinsics, f.stamp_ns) for f in self._frames]
             write_transforms(dataset_dir, self._transforms(frames))
-        return dataset_dir
+            latest = max(f.stamp_ns or 0 for f in self._frames)
+        return KeyframeSnapshot(dataset_dir, len(frames), latest)
 
     def reset(self) -> Path | None:
         """Start a new collection; the old keyframes are moved aside (``keyframes_reset_<unix time>``), not lost.

@@ -57,7 +57,9 @@ def test_resume_snapshot_and_reset(tmp_path: Path) -> None:
     resumed = KeyframeStore(tmp_path / 'kf')
     assert len(resumed) == 3
     assert resumed.offer(_kf(2.01, 9)) is KeyframeDecision.TOO_CLOSE  # compared with the last stored pose
-    snap = resumed.snapshot(tmp_path / 'snap')
+    snapshot = resumed.snapshot(tmp_path / 'snap')
+    snap = snapshot.dataset_dir
+    assert snapshot.n_keyframes == 3 and snapshot.latest_stamp_ns == max(f.stamp_ns or 0 for f in resumed.frames)
     resumed.offer(_kf(5.0, 10))
     frames = read_transforms(snap).frames
     assert len(frames) == 3 and (snap / frames[0].file_path).exists()
