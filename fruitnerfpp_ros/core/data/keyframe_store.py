@@ -132,7 +132,6 @@ class KeyframeStore:
         self._frames: list[FrameEntry] = []
         self._intrinsics: CameraIntrinsics | None = None
         self._last_T: np.ndarray | None = None
-        self._next_index = 0
         self.rejected = {d: 0 for d in KeyframeDecision if d is not KeyframeDecision.ACCEPTED}
         self._open()
 
@@ -147,7 +146,6 @@ class KeyframeStore:
             self._frames = list(existing.frames)
             self._intrinsics = existing.intrinsics
             self._last_T = optical_from_opengl(self._frames[-1].T_world_camera)
-            self._next_index = len(self._frames)
 
     def __len__(self) -> int:
         with self._lock:
@@ -181,7 +179,7 @@ class KeyframeStore:
         return KeyframeDecision.ACCEPTED
 
     def _write(self, keyframe: Keyframe) -> None:
-        name = f'{self._next_index:06d}.png'
+        name = f'{len(self._frames):06d}.png'  # frames are only ever appended (reset starts a new folder)
         instance = np.asarray(keyframe.instance, dtype=np.uint16)
         rgb = np.ascontiguousarray(keyframe.rgb[..., ::-1])
         for sub, image in (('images', rgb), ('instances', instance),
@@ -193,7 +191,6 @@ class KeyframeStore:
         own = None if keyframe.intrinsics == self._intrinsics else keyframe.intrinsics
         self._frames.append(FrameEntry(f'images/{name}', opengl_from_optical(keyframe.T_world_optical),
                                        f'instances/{name}', f'semantics/{name}', own, int(keyframe.stamp_ns)))
-        self._next_index += 1
         self._last_T = np.asarray(keyframe.T_world_optical, dtype=np.float64)
         write_transforms(self.directory, self._transforms(self._frames))
 
@@ -238,7 +235,6 @@ class KeyframeStore:
             self._frames = []
             self._intrinsics = None
             self._last_T = None
-            self._next_index = 0
             self.rejected = {d: 0 for d in self.rejected}
             self._open()
             return moved
