@@ -11,7 +11,8 @@ from fruitnerfpp_ros.core.data.rays import RayBundle
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
 from fruitnerfpp_ros.core.rendering.marching import RaySamples, march_rays
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
-from fruitnerfpp_ros.core.rendering.volume import accumulation, composite, distortion, render_weights
+from fruitnerfpp_ros.core.rendering.volume import (accumulation, composite, distortion, exclusive_cumsum,
+                                                   render_weights)
 
 __all__ = ['RenderOutput', 'RenderSettings', 'render_rays', 'autocast_for']
 
@@ -69,9 +70,7 @@ def _early_terminated(samples: RaySamples, geometry: GeometryFn, stop_transmitta
     with torch.no_grad():
         weights = render_weights(samples, geometry(samples.positions).density)
         # transmittance before sample k = 1 - (accumulated weight before k)
-        before = torch.zeros(samples.num_rays * samples.max_samples, device=weights.device, dtype=weights.dtype)
-        before = before.index_put((samples.slot,), weights).view(samples.num_rays, samples.max_samples)
-        before = (torch.cumsum(before, dim=1) - before).reshape(-1)[samples.slot]
+        before = exclusive_cumsum(samples, weights)
         keep = torch.nonzero(1.0 - before > stop_transmittance).squeeze(1)
     return RaySamples(samples.positions[keep], samples.directions[keep], samples.ray_index[keep], samples.slot[keep],
                       samples.num_rays, samples.max_samples, samples.step)

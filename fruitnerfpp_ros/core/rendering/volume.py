@@ -6,7 +6,14 @@ import torch
 
 from fruitnerfpp_ros.core.rendering.marching import RaySamples
 
-__all__ = ['render_weights', 'composite', 'accumulation', 'distortion']
+__all__ = ['exclusive_cumsum', 'render_weights', 'composite', 'accumulation', 'distortion']
+
+
+def exclusive_cumsum(samples: RaySamples, values: torch.Tensor) -> torch.Tensor:
+    """Per sample [S], the sum of ``values`` [S] over the same ray's earlier samples (prefix sum in ray order)."""
+    dense = values.new_zeros(samples.num_rays * samples.max_samples).index_put((samples.slot,), values)
+    dense = dense.view(samples.num_rays, samples.max_samples)
+    return (torch.cumsum(dense, dim=1) - dense).reshape(-1)[samples.slot]
 
 
 def render_weights(samples: RaySamples, density: torch.Tensor) -> torch.Tensor:
@@ -20,11 +27,7 @@ def render_weights(samples: RaySamples, density: torch.Tensor) -> torch.Tensor:
         density: [S] density sigma (1/m).
     """
     tau = density.float() * samples.step
-    dense = tau.new_zeros(samples.num_rays * samples.max_samples).index_put((samples.slot,), tau)
-    dense = dense.view(samples.num_rays, samples.max_samples)
-    before = torch.cumsum(dense, dim=1) - dense
-    weights = torch.exp(-before) * (1.0 - torch.exp(-dense))
-    return weights.reshape(-1)[samples.slot]
+    return torch.exp(-exclusive_cumsum(samples, tau)) * (1.0 - torch.exp(-tau))
 
 
 def composite(samples: RaySamples, weights: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
@@ -44,12 +47,8 @@ def distortion(samples: RaySamples, weights: torch.Tensor) -> torch.Tensor:
     L = sum_ij w_i w_j |t_i - t_j| + 1/3 sum_i w_i^2 step, computed with prefix sums in O(samples).
     """
     t = (samples.slot % samples.max_samples).to(weights.dtype) * samples.step
-    dense_w = weights.new_zeros(samples.num_rays * samples.max_samples).index_put((samples.slot,), weights)
-    dense_wt = weights.new_zeros(samples.num_rays * samples.max_samples).index_put((samples.slot,), weights * t)
-    dense_w = dense_w.view(samples.num_rays, samples.max_samples)
-    dense_wt = dense_wt.view(samples.num_rays, samples.max_samples)
-    w_before = (torch.cumsum(dense_w, 1) - dense_w).reshape(-1)[samples.slot]
-    wt_before = (torch.cumsum(dense_wt, 1) - dense_wt).reshape(-1)[samples.slot]
+    w_before = exclusive_cumsum(samples, weights)
+    wt_before = exclusive_cumsum(samples, weights * t)
     pairwise = 2.0 * weights * (t * w_before - wt_before)
     own = weights ** 2 * samples.step / 3.0
     return (pairwise + own).sum() / max(samples.num_rays, 1)
