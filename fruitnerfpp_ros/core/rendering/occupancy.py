@@ -33,9 +33,6 @@ class OccupancyGrid(nn.Module):
         self.register_buffer('aabb', torch.as_tensor(aabb, dtype=torch.float32).clone())
         self.register_buffer('values', torch.zeros(resolution ** 3))
         self.register_buffer('occupied', torch.ones(resolution ** 3, dtype=torch.bool))
-        index = torch.arange(resolution ** 3)
-        cells = torch.stack([index // resolution ** 2, (index // resolution) % resolution, index % resolution], -1)
-        self.register_buffer('cells', cells, persistent=False)
 
     def cell_index(self, xyz: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Flat cell index [N] of world points and whether each lies inside the box [N]."""
@@ -54,16 +51,25 @@ class OccupancyGrid(nn.Module):
                generator: torch.Generator, chunk: int = 1 << 18) -> None:
         """Evaluate density at one random point per cell and refresh the occupancy.
 
+        The random points are drawn on the grid's device, chunk by chunk, from a generator seeded by one draw
+        of ``generator``: no res^3 x 3 host buffer and no host-to-device copy per update, and the stream still
+        follows the checkpointed generator (resume stays exact).
+
         Args:
             density_fn: world points [N, 3] -> density [N] (1/m).
             step_size: ray-marching step in metres (turns density into optical thickness).
             generator: random source (CPU generator, part of the checkpointed training state).
         """
-        jitter = torch.rand(self.cells.shape, generator=generator).to(self.aabb.device)
-        unit = (self.cells.to(torch.float32) + jitter) / self.resolution
-        xyz = self.aabb[0] + unit * (self.aabb[1] - self.aabb[0])
-        fresh = torch.cat([density_fn(xyz[i:i + chunk]).float() for i in range(0, len(xyz), chunk)]) * step_size
-        self.values.copy_(torch.maximum(self.values * self.decay, fresh))
+        device, res = self.aabb.device, self.resolution
+        local = torch.Generator(device=device)
+        local.manual_seed(int(torch.randint(0, 2 ** 62, (1,), generator=generator)))
+        fresh = torch.empty(res ** 3, device=device)
+        for start in range(0, res ** 3, chunk):
+            index = torch.arange(start, min(start + chunk, res ** 3), device=device)
+            cells = torch.stack([index // res ** 2, (index // res) % res, index % res], -1).to(torch.float32)
+            unit = (cells + torch.rand(cells.shape, generator=local, device=device)) / res
+            fresh[start:start + len(index)] = density_fn(self.aabb[0] + unit * (self.aabb[1] - self.aabb[0])).float()
+        self.values.copy_(torch.maximum(self.values * self.decay, fresh * step_size))
         self.occupied.copy_(self.values > min(self.threshold, float(self.values.mean())))
 
     @property
