@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.config_io import config_from_mapping, load_yaml_mapping, replace_nested
+from fruitnerfpp_ros.core.config_io import (config_from_mapping, is_sectioned, load_pipeline_sections,
+                                            load_yaml_mapping, replace_nested)
 from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.errors import ConfigError
 
@@ -24,14 +25,13 @@ T = TypeVar('T')
 
 
 def load_section(cls: type[T], path: Path | None, section: str) -> T:
-    """``cls`` from a YAML file that is either the section itself or holds it under ``section``."""
+    """``cls`` from a YAML file that is either that config's fields or a pipeline file holding it under
+    ``section`` (strict: see :func:`load_pipeline_sections`)."""
     if path is None:
         return cls()
     data = load_yaml_mapping(path)
-    if section in data and isinstance(data[section], dict):
-        data = data[section]
-    elif any(key in data for key in ('train', 'export', 'clustering')):
-        data = {}
+    if is_sectioned(data):
+        data = load_pipeline_sections(path)[section]
     try:
         return config_from_mapping(cls, data)
     except ConfigError as err:

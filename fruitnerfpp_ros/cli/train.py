@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from fruitnerfpp_ros.core.config_io import load_yaml_mapping, replace_nested
+from fruitnerfpp_ros.core.config_io import load_pipeline_sections, load_yaml_mapping, replace_nested
 from fruitnerfpp_ros.errors import ConfigError
 
 if TYPE_CHECKING:  # torch is imported only by the commands that train (``fruitnerfpp --help`` stays fast)
@@ -19,8 +19,8 @@ def resolve_train_config(preset: str, config_file: str | Path | None, *, section
                          ) -> TrainConfig:
     """The preset, with the values of an optional YAML file (full or partial TrainConfig) applied on top.
 
-    ``section``: the file holds several configs and the TrainConfig values are under this key (``fruitnerfpp run
-    --config`` files: train / export / clustering); a file without it changes nothing.
+    ``section``: the file is a pipeline file (``fruitnerfpp run --config``: sections train / export /
+    clustering, read by :func:`load_pipeline_sections`) and the TrainConfig values are under this key.
 
     Raises:
         ConfigError: unknown preset, unreadable YAML or unknown key (naming the file).
@@ -31,9 +31,7 @@ def resolve_train_config(preset: str, config_file: str | Path | None, *, section
     if config_file is None:
         return config
     path = Path(config_file)
-    data = load_yaml_mapping(path)
-    if section is not None:
-        data = data[section] if isinstance(data.get(section), dict) else {}
+    data = load_yaml_mapping(path) if section is None else load_pipeline_sections(path)[section]
     try:
         return replace_nested(config, data)
     except ConfigError as err:

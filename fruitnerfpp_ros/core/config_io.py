@@ -136,6 +136,38 @@ def load_yaml_mapping(path: str | Path, *, kind: str = 'config file') -> dict[st
     return dict(data)
 
 
+#: Top-level keys of a pipeline config file (``fruitnerfpp run --config``, the node's ``config_file``).
+PIPELINE_SECTIONS = ('train', 'export', 'clustering')
+
+
+def is_sectioned(data: Mapping[str, Any]) -> bool:
+    """Whether a YAML mapping is a pipeline file (sections) rather than one config's fields."""
+    return any(key in data for key in PIPELINE_SECTIONS)
+
+
+def load_pipeline_sections(path: str | Path, *, kind: str = 'config file') -> dict[str, dict[str, Any]]:
+    """The sections ``train`` / ``export`` / ``clustering`` of a pipeline config file, each ``{}`` when absent.
+
+    One rule for every reader (``fruitnerfpp run --config``, the fruit_counter node's ``config_file``): any other
+    top-level key is an error, so a misspelt section never passes silently.
+
+    Raises:
+        ConfigError: unreadable YAML, an unknown section, or a section that is not a mapping (naming the file).
+    """
+    data = load_yaml_mapping(path, kind=kind)
+    unknown = sorted(set(data) - set(PIPELINE_SECTIONS))
+    if unknown:
+        raise ConfigError(f'{kind} {path}: unknown section(s) {", ".join(map(str, unknown))}; expected only '
+                          f"{', '.join(PIPELINE_SECTIONS)} (each optional, each holding that stage's config)")
+    sections: dict[str, dict[str, Any]] = {}
+    for name in PIPELINE_SECTIONS:
+        value = data.get(name) or {}
+        if not isinstance(value, Mapping):
+            raise ConfigError(f'{kind} {path}: section {name} must be a mapping, got {type(value).__name__}')
+        sections[name] = dict(value)
+    return sections
+
+
 def load_config(cls: type[T], path: str | Path) -> T:
     """Load ``cls`` from a YAML file (a mapping of its fields)."""
     path = Path(path)

@@ -14,8 +14,8 @@ from pathlib import Path
 from typing import Any, Literal, Mapping, NamedTuple
 
 
-from fruitnerfpp_ros.core.config_io import (config_from_mapping, config_to_mapping, load_yaml_mapping,
-                                            replace_nested)
+from fruitnerfpp_ros.core.config_io import (config_from_mapping, config_to_mapping, load_pipeline_sections,
+                                            load_yaml_mapping, replace_nested)
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeConfig
 from fruitnerfpp_ros.errors import ConfigError
 
@@ -180,12 +180,8 @@ def pipeline_configs(settings: CounterSettings) -> PipelineConfigs:
             warnings.append("preset 'auto' on the CPU: using the 'tiny' preset (fast, lower quality); "
                             "train on a CUDA machine for the 'default' preset")
     sections: dict[str, Any] = {}
-    if settings.config_file:
-        path = Path(settings.config_file)
-        sections = load_yaml_mapping(path, kind='config_file')
-        if set(sections) - {'train', 'export', 'clustering'}:
-            raise ConfigError(f"config_file {path}: expected only the sections 'train', 'export', 'clustering' "
-                              '(the same file `fruitnerfpp run --config` reads)')
+    if settings.config_file:  # the same file `fruitnerfpp run --config` reads, under the same rules
+        sections = load_pipeline_sections(settings.config_file, kind='config_file')
     try:
         train = TrainConfig.preset(name)
         if sections.get('train'):

@@ -28,3 +28,20 @@ def test_sections_of_a_run_config_and_unknown_keys(tmp_path: Path) -> None:
     path.write_text('clustering: {lambda_f: 4.0}\n')
     with pytest.raises(ConfigError, match='lambda_f'):
         load_section(ClusterConfig, path, 'clustering')
+
+
+def test_every_reader_of_a_pipeline_file_rejects_a_misspelt_section(tmp_path: Path) -> None:
+    from fruitnerfpp_ros.cli.train import resolve_train_config
+    from fruitnerfpp_ros.nodes.params import pipeline_configs, settings_from_parameters
+    path = tmp_path / 'run.yaml'
+    path.write_text('trian: {seed: 3}\nexport: {fruit_threshold: 0.7}\n')
+    readers = [lambda: resolve_train_config('tiny', path, section='train'),
+               lambda: load_section(ExportConfig, path, 'export'),
+               lambda: load_section(ClusterConfig, path, 'clustering'),
+               lambda: pipeline_configs(settings_from_parameters({'preset': 'tiny', 'config_file': str(path)}))]
+    for read in readers:
+        with pytest.raises(ConfigError, match=r'run.yaml: unknown section\(s\) trian; expected only train, export'):
+            read()
+    path.write_text('export: 0.7\n')
+    with pytest.raises(ConfigError, match='section export must be a mapping'):
+        load_section(ExportConfig, path, 'export')
