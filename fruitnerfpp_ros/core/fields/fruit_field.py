@@ -7,7 +7,7 @@ position (fruit boundaries and fruits next to each other need features finer tha
 carries, above all early in training).
 
 Points are normalised per axis to the unit cube of the scene box; density is returned in 1/m and is zero
-outside the box.
+outside the box. Space outside the box (ground, sky) is the optional outer field's (outer_field.py).
 """
 
 from __future__ import annotations
@@ -21,6 +21,7 @@ from torch import nn
 
 from fruitnerfpp_ros.core.fields.hash_grid import HashGridEncoding
 from fruitnerfpp_ros.core.fields.mlp import make_mlp, spherical_harmonics, trunc_exp
+from fruitnerfpp_ros.core.fields.outer_field import OuterField
 from fruitnerfpp_ros.core.fields.query import FieldQuery
 
 __all__ = ['FieldConfig', 'FruitField', 'GeometryOutput']
@@ -76,8 +77,21 @@ class FieldConfig:
     """Hidden layers of the instance MLP."""
     background_sh: bool = False
     """Let the background colour vary with the ray direction (an environment map)."""
-    density_bias: float = -1.0
-    """Initial bias of the density output (density = exp(raw) 1/m)."""
+    density_bias: float | None = None
+    """Initial bias of the density output (density = exp(raw) 1/m); None = the trainer's choice: half the
+    occupancy threshold's density at the run's marching step, so untrained space starts just below occupied."""
+    outer_samples: int = 0
+    """Samples per ray of the outer field that models the ground and sky beyond the scene box (outer_field.py),
+    spaced evenly in inverse distance; 0 = no outer field, a background colour only."""
+    outer_far_factor: float = 20.0
+    """The outer field is rendered from where a ray leaves the box to this many box diagonals beyond."""
+    outer_num_levels: int = 4
+    """Outer field hash grid (over the contracted cube): levels. Kept coarse on purpose: 8 levels up to 512
+    painted the tree onto the shell behind the box and left the box empty (docs/results/tiny_preset.md)."""
+    outer_log2_table_size: int = 17
+    """Outer field hash grid: log2 of entries per level."""
+    outer_max_resolution: int = 64
+    """Outer field hash grid: finest resolution over the contracted cube (the box spans half of it)."""
 
 
 class GeometryOutput(NamedTuple):
@@ -102,13 +116,18 @@ class FruitField(nn.Module):
                                          log2_table_size=c.log2_table_size, base_resolution=c.base_resolution,
                                          max_resolution=c.max_resolution)
         self.density_mlp = make_mlp(self.encoding.output_dim, c.hidden_dim, c.density_layers, 1 + c.geo_feature_dim)
-        with torch.no_grad():
-            self.density_mlp[-1].bias[0].fill_(c.density_bias)
+        if c.density_bias is not None:
+            with torch.no_grad():
+                self.density_mlp[-1].bias[0].fill_(c.density_bias)
         self.color_mlp = make_mlp(c.geo_feature_dim + c.sh_degree ** 2, c.hidden_dim, c.color_layers, 3)
         # Colour of rays leaving the box (sky, distant ground) as a function of the ray direction.
         self.background = nn.Linear(c.sh_degree ** 2, 3)
         nn.init.zeros_(self.background.weight)
         nn.init.zeros_(self.background.bias)
+        self.outer = None if c.outer_samples <= 0 else OuterField(
+            self.aabb, num_levels=c.outer_num_levels, log2_table_size=c.outer_log2_table_size,
+            base_resolution=c.base_resolution, max_resolution=c.outer_max_resolution, hidden_dim=c.hidden_dim,
+            sh_degree=c.sh_degree)
         self.semantic_encoding = HashGridEncoding(
             num_levels=c.semantic_num_levels, features_per_level=2, log2_table_size=c.semantic_log2_table_size,
             base_resolution=c.semantic_base_resolution, max_resolution=c.semantic_max_resolution)
@@ -122,9 +141,10 @@ class FruitField(nn.Module):
 
     # -- parameter groups of the cascaded schedule ------------------------------------------------------------
     def geometry_parameters(self) -> Iterator[nn.Parameter]:
-        """Density + colour (+ background colour): trained in stages 1 and 2."""
-        for module in (self.encoding, self.density_mlp, self.color_mlp, self.background):
-            yield from module.parameters()
+        """Density + colour (+ background colour and outer field): trained in stages 1 and 2."""
+        for module in (self.encoding, self.density_mlp, self.color_mlp, self.background, self.outer):
+            if module is not None:
+                yield from module.parameters()
 
     def semantic_parameters(self) -> Iterator[nn.Parameter]:
         """The semantic encoding and head: trained in stage 2."""

@@ -11,6 +11,7 @@ from fruitnerfpp_ros.core.data.rays import RayBundle
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
 from fruitnerfpp_ros.core.rendering.marching import RaySamples, march_rays
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
+from fruitnerfpp_ros.core.rendering.outer import render_outer
 from fruitnerfpp_ros.core.rendering.volume import (accumulation, composite, distortion, exclusive_cumsum,
                                                    render_weights)
 
@@ -42,7 +43,8 @@ class RenderOutput(NamedTuple):
     """Per-ray results.
 
     Attributes:
-        rgb: [N, 3] colour in [0, 1] (background colour blended in where the ray stays transparent).
+        rgb: [N, 3] colour in [0, 1] (the outer field and the background colour blended in where the ray stays
+            transparent).
         opacity: [N] accumulated weight in [0, 1].
         fruit_prob: [N] rendered fruit probability (sum of weight * sigmoid(logit)), or None.
         embedding: [N, D] rendered instance embedding (not normalised), or None.
@@ -111,7 +113,14 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
                 dist = distortion(samples, weights)
             values = field.rgb(geo.features, samples.directions)
             opacity = accumulation(samples, weights)
-            rgb = composite(samples, weights, values) + (1.0 - opacity[:, None]) * field.background_rgb(rays.directions)
+            behind = field.background_rgb(rays.directions)
+            if field.outer is not None:
+                c = field.config
+                outer_rgb, outer_opacity = render_outer(field.outer, rays, num_samples=c.outer_samples,
+                                                        far_factor=c.outer_far_factor, near=settings.near,
+                                                        jitter=jitter)
+                behind = outer_rgb + (1.0 - outer_opacity[:, None]) * behind
+            rgb = composite(samples, weights, values) + (1.0 - opacity[:, None]) * behind
         else:
             opacity = accumulation(samples, weights.detach())
         if semantic:

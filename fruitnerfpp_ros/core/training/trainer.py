@@ -178,9 +178,10 @@ class _Session:
                                        weight_threshold=config.instance.weight_threshold)
         # Start just below the occupancy threshold (as instant-NGP does at its scale): the first occupancy update
         # then keeps only cells whose density training raised, never cells no ray constrains.
-        with torch.no_grad():
-            self.field.density_mlp[-1].bias[0].fill_(
-                math.log(0.5 * config.render.occupancy_threshold / self.settings.step))
+        if config.field.density_bias is None:
+            with torch.no_grad():
+                self.field.density_mlp[-1].bias[0].fill_(
+                    math.log(0.5 * config.render.occupancy_threshold / self.settings.step))
         self.geometry_fn: Callable[[torch.Tensor], GeometryOutput] = self.field.geometry
         if device.type == 'cuda' and config.render.compile and hasattr(torch, 'compile'):
             self.geometry_fn = _GuardedCompile(self.field.geometry)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import threading
 from pathlib import Path
 
@@ -117,3 +118,25 @@ def test_relabelling_instance_ids_changes_nothing(scene: Path, tmp_path: Path) -
     train(scene, tmp_path / 'a', MICRO, device='cpu')
     train(relabelled, tmp_path / 'b', MICRO, device='cpu')
     _assert_same(_state(tmp_path / 'a'), _state(tmp_path / 'b'))
+
+
+@pytest.mark.parametrize('bias', [None, 3.0])
+def test_density_bias_is_the_configured_one_or_automatic(scene: Path, tmp_path: Path, bias: float | None) -> None:
+    config = replace_nested(MICRO, {'field': {'density_bias': bias}, 'geometry': {'iterations': 1}})
+    train(scene, tmp_path / 'run', config, device='cpu')
+    trained = load_trained_scene(tmp_path / 'run', device='cpu')
+    automatic = math.log(0.5 * config.render.occupancy_threshold / trained.march_step)
+    # one Adam step of the geometry stage moves the bias by about lr; later stages freeze it
+    assert float(trained.field.density_mlp[-1].bias[0]) == pytest.approx(automatic if bias is None else bias,
+                                                                        abs=2 * config.geometry.lr)
+
+
+def test_outer_field_trains_with_the_geometry_and_reloads(scene: Path, tmp_path: Path) -> None:
+    config = replace_nested(MICRO, {'field': {'outer_samples': 8}})
+    train(scene, tmp_path / 'run', config, device='cpu')
+    trained = load_trained_scene(tmp_path / 'run', device='cpu')
+    assert trained.field.outer is not None
+    bias = trained.field.outer.density_mlp[-1].bias[0]
+    assert float(bias) != -6.0  # the initial log density moved: the photometric loss reached the outer field
+    records = RunDir(tmp_path / 'run').read_metrics()
+    assert all(math.isfinite(r['eval_psnr']) for r in records if r.get('event') == 'stage_end')
