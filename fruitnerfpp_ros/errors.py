@@ -16,6 +16,7 @@ __all__ = [
     'EvaluationError',
     'BagError',
     'ConversionError',
+    'SegmentationError',
 ]
 
 
@@ -61,3 +62,7 @@ class BagError(FruitNerfError):
 
 class ConversionError(FruitNerfError):
     """A ROS message cannot be converted (unknown encoding, wrong size, NaN pose...)."""
+
+
+class SegmentationError(FruitNerfError):
+    """Instance masks cannot be computed: a segmenter's package or checkpoint is missing, or its output is unusable."""

@@ -25,7 +25,7 @@ from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
 from fruitnerfpp_ros.nodes.conversions import (CameraModel, camera_model_from_camera_info, image_from_msg,
                                                stamp_ns_from_header, transform_from_pose_msg, undistort_image,
                                                undistort_mask)
-from fruitnerfpp_ros.nodes.mask_source import MaskSource, TopicMaskSource
+from fruitnerfpp_ros.nodes.mask_source import MaskSource, mask_source_from_settings
 from fruitnerfpp_ros.nodes.params import CounterSettings
 from fruitnerfpp_ros.nodes.tf_buffer import TfBuffer, TfFutureError, TfLookupError
 from fruitnerfpp_ros.nodes.time_sync import ApproximateTimeSynchronizer, SyncedSet
@@ -62,14 +62,15 @@ class FrameAssembler:
         settings: topics, pose source, frames, sync tolerance.
         store: where keyframes go.
         log: ``log(level, message)``; the assembler throttles repeated warnings itself.
-        mask_source: instance masks (default: the ``mask_topic``).
+        mask_source: instance masks (default: from the ``mask_source`` parameter: the ``mask_topic`` or a
+            segmenter built now).
     """
 
     def __init__(self, settings: CounterSettings, store: KeyframeStore, log: LogFunction,
                  mask_source: MaskSource | None = None) -> None:
         self.settings = settings
         self.store = store
-        self.mask_source = mask_source or TopicMaskSource(settings.mask_topic)
+        self.mask_source = mask_source or mask_source_from_settings(settings)
         self._log = log
         self._throttled = ThrottledLog(log)
         self.tf = TfBuffer()
@@ -189,9 +190,14 @@ class FrameAssembler:
         if rgb.shape[:2] != (camera.intrinsics.h, camera.intrinsics.w):
             raise ConversionError(f'{self.settings.image_topic}: image is {rgb.shape[1]}x{rgb.shape[0]} but '
                                   f'{self.settings.camera_info_topic} says {camera.intrinsics.w}x{camera.intrinsics.h}')
-        instances = self.mask_source.instances_for(rgb, items.get('mask'))
-        keyframe = Keyframe(synced.stamp_ns, undistort_image(rgb, camera), undistort_mask(instances, camera),
-                            T_world_optical, camera.intrinsics)
+        undistorted = undistort_image(rgb, camera)
+        instances: np.ndarray | Callable[[], np.ndarray]
+        if self.mask_source.topic is None:  # a segmenter: run on the undistorted image, only if the store keeps it
+            source = self.mask_source
+            instances = lambda: source.instances_for(undistorted, None)  # noqa: E731
+        else:
+            instances = undistort_mask(self.mask_source.instances_for(rgb, items.get('mask')), camera)
+        keyframe = Keyframe(synced.stamp_ns, undistorted, instances, T_world_optical, camera.intrinsics)
         decision = self.store.offer(keyframe)
         if decision is KeyframeDecision.ACCEPTED:
             n = len(self.store)

@@ -6,10 +6,10 @@ arrive); training runs :func:`fruitnerfpp_ros.core.pipeline.run_pipeline` in a b
 so the executor keeps spinning, reporting and collecting (keyframes that arrive during training are kept for the
 next ``~/train``).
 
-Interface (see docs/ros_interface.md): inputs ``image_topic`` / ``camera_info_topic`` / ``mask_topic`` / pose
-(``pose_topic``, ``odometry_topic`` or /tf + /tf_static); services ``~/train``, ``~/reset``, ``~/save``
-(std_srvs/Trigger); latched outputs ``~/fruit_count``, ``~/fruit_report``, ``~/fruit_cloud``, ``~/fruit_centers``,
-``~/fruit_markers``; ``/diagnostics``.
+Interface (see docs/ros_interface.md): inputs ``image_topic`` / ``camera_info_topic`` / ``mask_topic`` (or a
+segmenter, ``mask_source``) / pose (``pose_topic``, ``odometry_topic`` or /tf + /tf_static); services ``~/train``,
+``~/reset``, ``~/save`` (std_srvs/Trigger); latched outputs ``~/fruit_count``, ``~/fruit_report``, ``~/fruit_cloud``,
+``~/fruit_centers``, ``~/fruit_markers``; ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -70,7 +70,11 @@ class FruitCounterNode(Node):
         (self.run_dir / 'params.yaml').write_text(yaml.safe_dump(
             {'/**': {'ros__parameters': settings_mapping(s)}}, sort_keys=False))
         self.store = KeyframeStore(self.run_dir / 'keyframes', keyframe_config(s))
-        self.assembler = FrameAssembler(s, self.store, self._log)
+        try:  # a segmenter mask source loads its model here: a bad checkpoint stops the node at startup
+            self.assembler = FrameAssembler(s, self.store, self._log)
+        except FruitNerfError as err:
+            self.get_logger().error(f'cannot start: {err}')
+            raise
         self._warn_throttled = ThrottledLog(self._log, period_s=30.0)
 
         # Inputs: callbacks enqueue only.
@@ -142,8 +146,10 @@ class FruitCounterNode(Node):
         self._train_index = 0
         self._auto_started = False
         trigger = f'auto-train after {s.auto_train_after}' if s.auto_train_after else 'train on ~/train'
+        masks = f'masks from {s.mask_topic}' if s.mask_source == 'topic' else \
+            f'masks from the {s.mask_source} segmenter'
         self.get_logger().info(f'collecting keyframes into {self.store.directory} (pose source {s.pose_source}, '
-                               f'{trigger})')
+                               f'{masks}, {trigger})')
 
     # ------------------------------------------------------------------ logging
     def _log(self, level: str, message: str) -> None:

@@ -1,18 +1,26 @@
-"""Where instance masks come from: a topic now, a segmenter later, behind one interface.
+"""Where instance masks come from: a topic, or a segmenter run on each image, behind one interface.
 
 The frame assembler asks the mask source whether it needs a topic (then the mask message is synchronised with
 the image and pose) and turns what it gets into a [H, W] uint16 instance-id array for one image.
+:func:`mask_source_from_settings` maps the ``mask_source`` / ``segmenter_*`` parameters onto one.
 """
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+import dataclasses
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
+from fruitnerfpp_ros.errors import ConversionError, SegmentationError
 from fruitnerfpp_ros.nodes.conversions import mask_from_msg
 
-__all__ = ['MaskSource', 'TopicMaskSource']
+if TYPE_CHECKING:
+    from fruitnerfpp_ros.core.segmentation import Segmenter, SegmenterConfig
+    from fruitnerfpp_ros.nodes.params import CounterSettings
+
+__all__ = ['MaskSource', 'TopicMaskSource', 'SegmenterMaskSource', 'segmenter_config_from_settings',
+           'mask_source_from_settings']
 
 
 class MaskSource(Protocol):
@@ -30,6 +38,7 @@ class MaskSource(Protocol):
 
         Raises:
             ConversionError: the mask cannot be used (encoding, size).
+            SegmentationError: the segmenter failed on this image.
         """
         ...
 
@@ -42,3 +51,57 @@ class TopicMaskSource:
 
     def instances_for(self, rgb: np.ndarray, mask_msg: Any | None) -> np.ndarray:
         return mask_from_msg(mask_msg, topic=str(self.topic), expected_shape=rgb.shape[:2])
+
+
+class SegmenterMaskSource:
+    """Instance masks computed from the image by a core segmenter (no mask topic)."""
+
+    def __init__(self, segmenter: Segmenter, name: str = 'segmenter') -> None:
+        self.topic: str | None = None
+        self.segmenter = segmenter
+        self.name = name
+
+    def instances_for(self, rgb: np.ndarray, mask_msg: Any | None) -> np.ndarray:
+        ids = np.asarray(self.segmenter(rgb))
+        if ids.shape != rgb.shape[:2]:
+            raise ConversionError(f'{self.name}: instance map of shape {ids.shape} for a {rgb.shape[1]}x'
+                                  f'{rgb.shape[0]} image')
+        return ids.astype(np.uint16, copy=False)
+
+
+def segmenter_config_from_settings(settings: CounterSettings) -> SegmenterConfig:
+    """The SegmenterConfig of ``segmenter_config_file`` (or the defaults), with ``mask_source`` as its method,
+    ``segmenter_checkpoint`` (when set) as its checkpoint and ``device`` as its device.
+
+    Raises:
+        ConfigError: an unreadable segmenter_config_file or a bad value in it (the message names the file).
+    """
+    from fruitnerfpp_ros.core.config_io import load_config
+    from fruitnerfpp_ros.core.segmentation import SegmenterConfig
+    base = load_config(SegmenterConfig, settings.segmenter_config_file) if settings.segmenter_config_file \
+        else SegmenterConfig()
+    overrides: dict[str, Any] = {'method': settings.mask_source, 'device': settings.device}
+    if settings.segmenter_checkpoint:
+        overrides['checkpoint'] = settings.segmenter_checkpoint
+    return dataclasses.replace(base, **overrides)
+
+
+def mask_source_from_settings(settings: CounterSettings) -> MaskSource:
+    """``mask_source: topic`` -> :class:`TopicMaskSource` on ``mask_topic``; a segmenter method ->
+    :class:`SegmenterMaskSource` with the core segmenter built (and its model loaded) now.
+
+    Raises:
+        SegmentationError: the segmenter cannot be built (no or a bad checkpoint, a missing package); the message
+            names the parameter to fix.
+        ConfigError: a bad segmenter_config_file or device.
+    """
+    if settings.mask_source == 'topic':
+        return TopicMaskSource(settings.mask_topic)
+    from fruitnerfpp_ros.core.segmentation import build_segmenter
+    config = segmenter_config_from_settings(settings)
+    try:
+        segmenter = build_segmenter(config)
+    except SegmentationError as err:
+        raise SegmentationError(f'mask_source {settings.mask_source!r}: {err} (parameters mask_source, '
+                                'segmenter_checkpoint, segmenter_config_file)') from err
+    return SegmenterMaskSource(segmenter, name=f'{settings.mask_source} segmenter')

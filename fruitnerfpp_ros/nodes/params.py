@@ -38,6 +38,15 @@ class CounterSettings:
                                 'rational_polynomial and equidistant distortion is undone.')
     mask_topic: str = _p('/camera/instance_mask', 'Instance masks, sensor_msgs/Image mono16/16UC1/32SC1 '
                          '(0 = background, k = fruit k), same size and stamp as the image.')
+    mask_source: Literal['topic', 'fallback', 'torchscript', 'sam'] = _p(
+        'topic', "Where instance masks come from: 'topic' = mask_topic; 'fallback' = the built-in fruit-agnostic "
+        "colour segmenter run on each image; 'torchscript' / 'sam' = a TorchScript instance-segmentation model / "
+        'Segment Anything loaded from segmenter_checkpoint. With a segmenter, mask_topic is not subscribed.')
+    segmenter_checkpoint: str = _p('', "Local model file for mask_source 'torchscript' (a torch.jit.save file) or "
+                                   "'sam' (a Segment Anything .pth); nothing is downloaded.")
+    segmenter_config_file: str = _p('', "Optional SegmenterConfig YAML (config/segmentation.yaml): the segmenter's "
+                                    'thresholds; mask_source, segmenter_checkpoint (when set) and device override '
+                                    'its method, checkpoint and device.')
     pose_source: Literal['pose', 'odometry', 'tf'] = _p(
         'pose', "Camera pose: 'pose' = geometry_msgs/PoseStamped of the optical frame in world_frame on pose_topic; "
         "'odometry' = nav_msgs/Odometry of base_frame on odometry_topic plus camera_extrinsic; 'tf' = /tf + "

@@ -24,11 +24,12 @@ import time
 from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import cv2
 import numpy as np
 
+from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
 from fruitnerfpp_ros.core.data.transforms_format import (TRANSFORMS_NAME, CameraIntrinsics, FrameEntry,
                                                          TransformsFile, read_transforms, write_transforms)
 from fruitnerfpp_ros.core.geometry import opengl_from_optical, optical_from_opengl
@@ -68,14 +69,15 @@ class Keyframe(NamedTuple):
     Attributes:
         stamp_ns: header stamp in nanoseconds.
         rgb: [H, W, 3] uint8 image.
-        instance: [H, W] uint16 instance ids (0 = background).
+        instance: [H, W] uint16 instance ids (0 = background), or a function computing them (a segmenter), which
+            the store calls only for a frame it keeps.
         T_world_optical: 4x4 camera-to-world transform, ROS optical axes (z forward, x right, y down), metres.
         intrinsics: pinhole intrinsics in the transforms.json convention (top-left image corner at 0, 0).
     """
 
     stamp_ns: int
     rgb: np.ndarray
-    instance: np.ndarray
+    instance: np.ndarray | Callable[[], np.ndarray]
     T_world_optical: np.ndarray
     intrinsics: CameraIntrinsics
 
@@ -180,12 +182,11 @@ class KeyframeStore:
 
     def _write(self, keyframe: Keyframe) -> None:
         name = f'{len(self._frames):06d}.png'  # frames are only ever appended (reset starts a new folder)
-        instance = np.asarray(keyframe.instance, dtype=np.uint16)
-        rgb = np.ascontiguousarray(keyframe.rgb[..., ::-1])
-        for sub, image in (('images', rgb), ('instances', instance),
-                           ('semantics', np.where(instance > 0, 255, 0).astype(np.uint8))):
-            if not cv2.imwrite(str(self.directory / sub / name), image):
-                raise DatasetError(f'{self.directory / sub / name}: could not write keyframe image')
+        instance = keyframe.instance() if callable(keyframe.instance) else keyframe.instance
+        instance = np.asarray(instance, dtype=np.uint16)
+        write_rgb_png(self.directory / 'images' / name, keyframe.rgb)
+        write_uint16_png(self.directory / 'instances' / name, instance)
+        write_mask_png(self.directory / 'semantics' / name, instance > 0)
         if self._intrinsics is None:
             self._intrinsics = keyframe.intrinsics
         own = None if keyframe.intrinsics == self._intrinsics else keyframe.intrinsics

@@ -1,7 +1,7 @@
 """Deterministic writers of the synthetic dataset files: PNGs, gt_fruits.json, sparse_pc.ply.
 
-PNGs are written with OpenCV at a fixed compression level, JSON with sorted keys and rounded floats, so the same
-scene gives byte-identical files.
+PNGs are written by ``core/data/png_io.py`` (fixed compression level; re-exported here), JSON with sorted keys and
+rounded floats, so the same scene gives byte-identical files.
 """
 
 from __future__ import annotations
@@ -10,39 +10,17 @@ import json
 from pathlib import Path
 from typing import Any, Sequence
 
-import cv2
 import numpy as np
 
 from fruitnerfpp_ros.core.data.ply_io import write_ply_vertices
+from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
 from fruitnerfpp_ros.core.synthetic.scene import GtFruit
-from fruitnerfpp_ros.errors import SynthError
 
 __all__ = ['write_rgb_png', 'write_uint16_png', 'write_mask_png', 'write_gt_fruits', 'write_sparse_ply',
            'GT_NAME', 'SPARSE_PLY_NAME']
 
 GT_NAME = 'gt_fruits.json'
 SPARSE_PLY_NAME = 'sparse_pc.ply'
-_PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
-
-
-def _imwrite(path: Path, image: np.ndarray) -> None:
-    if not cv2.imwrite(str(path), image, _PNG_PARAMS):
-        raise SynthError(f'cannot write image {path}')
-
-
-def write_rgb_png(path: Path, rgb: np.ndarray) -> None:
-    """Write an RGB [H, W, 3] uint8 image as PNG."""
-    _imwrite(path, np.ascontiguousarray(rgb[..., ::-1]))
-
-
-def write_uint16_png(path: Path, ids: np.ndarray) -> None:
-    """Write [H, W] ids as a 16-bit single-channel PNG."""
-    _imwrite(path, ids.astype(np.uint16))
-
-
-def write_mask_png(path: Path, mask: np.ndarray) -> None:
-    """Write a boolean [H, W] mask as an 8-bit PNG (255 = true, 0 = false)."""
-    _imwrite(path, np.where(mask, 255, 0).astype(np.uint8))
 
 
 def _round(values: Any, digits: int = 6) -> list[float]:

@@ -1,0 +1,84 @@
+"""``fruitnerfpp segment``: masks for a dataset without them, refusal to overwrite, one-line errors, lazy torch."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fruitnerfpp_ros.cli.main import main
+from fruitnerfpp_ros.core.data.dataset import load_dataset
+from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+from fruitnerfpp_ros.errors import DatasetError
+
+
+@pytest.fixture
+def unmasked(tmp_path: Path) -> Path:
+    """A small synthetic lemon tree whose instance / semantic masks were removed."""
+    from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
+    dataset = tmp_path / 'lemons'
+    generate_orchard(SynthConfig(fruit='lemon', count=12, views=4, resolution=(80, 64), seed=2), dataset)
+    shutil.rmtree(dataset / 'instances')
+    shutil.rmtree(dataset / 'semantics')
+    data = json.loads((dataset / 'transforms.json').read_text())
+    for frame in data['frames']:
+        del frame['instance_path'], frame['semantic_path']
+    (dataset / 'transforms.json').write_text(json.dumps(data))
+    return dataset
+
+
+def _one_line_error(capsys: pytest.CaptureFixture[str], message: str) -> None:
+    err = capsys.readouterr().err
+    assert err.count('\n') == 1 and err.startswith('fruitnerfpp segment: error: ') and message in err, err
+    assert 'Traceback' not in err
+
+
+def test_segmented_dataset_loads(unmasked: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(DatasetError, match='no instance_path'):
+        load_dataset(unmasked)
+    assert main(['segment', str(unmasked), '--quiet']) == 0
+    assert 'segmented 4 images' in capsys.readouterr().out
+    frames = read_transforms(unmasked).frames
+    assert [f.instance_path for f in frames] == [f'instances/{i:04d}.png' for i in range(4)]
+    assert [f.semantic_path for f in frames] == [f'semantics/{i:04d}.png' for i in range(4)]
+    dataset = load_dataset(unmasked)
+    assert dataset.instance_masks.shape == (4, 64, 80) and int(dataset.instance_masks.max()) >= 1
+    assert np.array_equal(dataset.semantic_masks.numpy(), dataset.instance_masks.numpy() > 0)
+    assert not list(unmasked.rglob('*.tmp*'))
+
+
+def test_existing_masks_are_not_overwritten_without_the_flag(unmasked: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(['segment', str(unmasked), '--quiet']) == 0
+    capsys.readouterr()
+    before = (unmasked / 'instances/0000.png').stat().st_mtime_ns
+    assert main(['segment', str(unmasked), '--quiet']) == 2
+    _one_line_error(capsys, '4 of 4 frames already have instance masks')
+    assert (unmasked / 'instances/0000.png').stat().st_mtime_ns == before
+    assert main(['segment', str(unmasked), '--quiet', '--overwrite']) == 0
+
+
+def test_missing_checkpoint_is_one_line(unmasked: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    missing = tmp_path / 'fruit_model.pt'
+    assert main(['segment', str(unmasked), '--method', 'torchscript', '--checkpoint', str(missing)]) == 2
+    _one_line_error(capsys, f'TorchScript checkpoint not found: {missing}')
+    assert main(['segment', str(unmasked), '--method', 'sam']) == 2
+    _one_line_error(capsys, "method 'sam' needs a checkpoint")
+    config = tmp_path / 'seg.yaml'
+    config.write_text('method: torchscript\nchekpoint: x.pt\n')
+    assert main(['segment', str(unmasked), '--config', str(config)]) == 2
+    _one_line_error(capsys, 'chekpoint')
+    assert read_transforms(unmasked).frames[0].instance_path is None
+
+
+def test_help_does_not_import_torch() -> None:
+    code = ('import sys\nfrom fruitnerfpp_ros.cli.main import main\n'
+            'try:\n    main(["segment", "--help"])\nexcept SystemExit:\n    pass\n'
+            'print("torch" in sys.modules)')
+    out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == 'False'
