@@ -23,6 +23,9 @@ test: $(STAMP)
 demo: $(STAMP)
 	$(TEST_ENV) $(VENV)/bin/fruitnerfpp demo --out demo_out
 
+lint: $(STAMP)
+	$(VPY) -m flake8
+
 bench: $(STAMP)
 	$(VPY) bench/cluster_bench.py
 

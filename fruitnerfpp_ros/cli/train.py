@@ -44,9 +44,11 @@ def run(args: argparse.Namespace) -> int:
     config = resolve_train_config(args.preset, args.config)
     summary = train(args.dataset, args.out, config, device=args.device, resume=args.resume, show_progress=True)
     for stage in summary.stages:
-        print(f'{stage.name:9s} {stage.steps:6d} steps  {stage.wall_s:7.1f} s  held-out PSNR {stage.eval.psnr:6.2f} dB  '
-              f'semantic IoU {stage.eval.semantic_iou:.3f}  instance acc {stage.eval.instance_acc:.3f}')
-    print(f'run directory: {summary.run_dir}' + ('  (stopped early; continue with --resume)' if summary.stopped else ''))
+        print(f'{stage.name:9s} {stage.steps:6d} steps  {stage.wall_s:7.1f} s  '
+              f'held-out PSNR {stage.eval.psnr:6.2f} dB  semantic IoU {stage.eval.semantic_iou:.3f}  '
+              f'instance acc {stage.eval.instance_acc:.3f}')
+    stopped = '  (stopped early; continue with --resume)' if summary.stopped else ''
+    print(f'run directory: {summary.run_dir}{stopped}')
     return 0
 
 

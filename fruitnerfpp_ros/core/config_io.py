@@ -56,7 +56,9 @@ def _convert(value: Any, annotation: Any, key: str) -> Any:
             return tuple(_convert(v, args[0], f'{key}[{i}]') for i, v in enumerate(value))
         if args and len(args) != len(value):
             raise ConfigError(f'{key}: expected {len(args)} values, got {len(value)}')
-        return tuple(_convert(v, a, f'{key}[{i}]') for i, (a, v) in enumerate(zip(args, value))) if args else tuple(value)
+        if not args:
+            return tuple(value)
+        return tuple(_convert(v, a, f'{key}[{i}]') for i, (a, v) in enumerate(zip(args, value)))
     if origin in (list,):
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f'{key}: expected a list, got {value!r}')

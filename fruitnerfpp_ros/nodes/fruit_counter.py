@@ -330,5 +330,6 @@ def main(args: list[str] | None = None) -> int:
     return spin_node('fruit_counter', FruitCounterNode, lambda: MultiThreadedExecutor(num_threads=3), args,
                      on_shutdown=lambda node: node.stop_training(timeout_s=5.0))
 
+
 if __name__ == '__main__':
     sys.exit(main())

@@ -217,5 +217,6 @@ def main(args: list[str] | None = None) -> int:
     """Run the node (``ros2 run fruitnerfpp_ros orchard_sim --ros-args -p source:=DIR``)."""
     return spin_node('orchard_sim', OrchardSimNode, SingleThreadedExecutor, args)
 
+
 if __name__ == '__main__':
     sys.exit(main())

@@ -90,9 +90,8 @@ def _tf_msg(typestore: Any, parent: str, child: str, T: np.ndarray, stamp: int) 
     from fruitnerfpp_ros.core.geometry import quaternion_from_transform
     t, q = quaternion_from_transform(T)
     Ty = typestore.types
-    header = Ty['std_msgs/msg/Header'](stamp=Ty['builtin_interfaces/msg/Time'](sec=stamp // 10**9,
-                                                                                 nanosec=stamp % 10**9),
-                                       frame_id=parent)
+    time = Ty['builtin_interfaces/msg/Time'](sec=stamp // 10**9, nanosec=stamp % 10**9)
+    header = Ty['std_msgs/msg/Header'](stamp=time, frame_id=parent)
     tr = Ty['geometry_msgs/msg/Transform'](translation=Ty['geometry_msgs/msg/Vector3'](x=t[0], y=t[1], z=t[2]),
                                            rotation=Ty['geometry_msgs/msg/Quaternion'](x=q[0], y=q[1], z=q[2],
                                                                                        w=q[3]))

@@ -74,7 +74,7 @@ def check_results_mcap(result: Any) -> None:
 
 
 def test_both_storages_give_the_same_keyframes_as_the_dataset(bags: dict[str, Path], tmp_path: Path,
-                                                             tiny_apple_dataset: Path) -> None:
+                                                              tiny_apple_dataset: Path) -> None:
     truth = read_transforms(tiny_apple_dataset)
     collected = {}
     for storage, bag in bags.items():

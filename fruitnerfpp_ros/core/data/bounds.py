@@ -18,6 +18,7 @@ from fruitnerfpp_ros.errors import DatasetError
 
 __all__ = ['scene_aabb', 'aabb_from_cameras', 'aabb_from_points', 'read_ply_points']
 
+
 def read_ply_points(path: str | Path) -> np.ndarray:
     """Finite vertex positions [N, 3] float64 of a PLY file (ascii or binary, vertex x/y/z properties).
 

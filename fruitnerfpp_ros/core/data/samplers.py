@@ -148,4 +148,3 @@ class GroupInstanceSampler:
         label = torch.arange(f).repeat_interleave(self.pixels_per_fruit)
         view = torch.full_like(flat, fruits.view)
         return PixelBatch(view, flat // self._width, flat % self._width, label)
-

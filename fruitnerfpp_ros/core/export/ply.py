@@ -19,6 +19,7 @@ __all__ = ['write_ply', 'read_ply', 'SPACING_COMMENT']
 SPACING_COMMENT = 'spacing_m'
 """Header comment ``spacing_m <metres>``: the export voxel of the cloud (see ``FruitPointCloud.spacing_m``)."""
 
+
 def _vertex_dtype(dim: int, with_labels: bool) -> np.dtype:
     fields = [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('red', 'u1'), ('green', 'u1'), ('blue', 'u1'),
               ('semantic', '<f4')] + [(f'emb_{i}', '<f4') for i in range(dim)]

@@ -6,10 +6,10 @@ schedule). ``config/train_<preset>.yaml`` hold the same values as YAML.
 Density scale (for the export): densities are in 1/m. A sample of thickness ``render.step`` metres is half
 opaque when ``density >= ln 2 / step``: the ``surface_density`` method gives that value for a box, ~34/m for the
 tiny preset on the 96 px apple scene. ``TrainedScene.surface_density`` (used by the export) takes the smaller of
-it and the 90th percentile of the trained occupancy grid's densities (~2/m for the tiny run). Fields trained briefly stay
-semi-transparent: the tiny CPU run measures a median density of ~0.25/m (90th percentile ~1.4/m) at random points
-of the box and ~2.4/m median, ~30/m max on the GT fruit surfaces, so export thresholds for tiny runs should sit
-near 2-5/m (or a multiple of the box median), with fruit_prob >= 0.9 doing most of the selection.
+it and the 90th percentile of the trained occupancy grid's densities (~2/m for the tiny run). Fields trained
+briefly stay semi-transparent: the tiny CPU run measures a median density of ~0.25/m (90th percentile ~1.4/m) at
+random points of the box and ~2.4/m median, ~30/m max on the GT fruit surfaces, so export thresholds for tiny runs
+should sit near 2-5/m (or a multiple of the box median), with fruit_prob >= 0.9 doing most of the selection.
 """
 
 from __future__ import annotations
@@ -213,4 +213,3 @@ class TrainConfig:
                 render=RenderConfig(samples_per_ray=1024, occupancy_resolution=256),
                 checkpoint_every=2000, log_every=100)
         raise ConfigError(f'unknown training preset {name!r}; expected one of {", ".join(PRESET_NAMES)}')
-

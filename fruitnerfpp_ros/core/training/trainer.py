@@ -168,7 +168,8 @@ class _Session:
         torch.manual_seed(config.seed)
         np.random.seed(config.seed)
         self.field = FruitField(config.field, aabb).to(device)
-        self.grid = OccupancyGrid(torch.as_tensor(aabb, dtype=torch.float32), resolution=config.render.occupancy_resolution,
+        self.grid = OccupancyGrid(torch.as_tensor(aabb, dtype=torch.float32),
+                                  resolution=config.render.occupancy_resolution,
                                   threshold=config.render.occupancy_threshold,
                                   decay=config.render.occupancy_decay).to(device)
         self.generator = torch.Generator().manual_seed(config.seed)
@@ -483,4 +484,3 @@ def load_trained_scene(run_dir: str | Path, device: str = 'auto') -> TrainedScen
     for p in field.parameters():
         p.requires_grad_(False)
     return TrainedScene(field, aabb, config, Path(state['dataset_dir']), int(state['stage']), grid)
-

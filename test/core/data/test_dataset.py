@@ -95,8 +95,8 @@ def test_nan_pose_names_frame(scene: Path, tmp_path: Path) -> None:
 
 
 def test_empty_dataset_names_transforms(tmp_path: Path) -> None:
-    (tmp_path / 'transforms.json').write_text(json.dumps({'fl_x': 1, 'fl_y': 1, 'cx': 1, 'cy': 1, 'w': 2, 'h': 2,
-                                                           'frames': []}))
+    empty = {'fl_x': 1, 'fl_y': 1, 'cx': 1, 'cy': 1, 'w': 2, 'h': 2, 'frames': []}
+    (tmp_path / 'transforms.json').write_text(json.dumps(empty))
     with pytest.raises(DatasetError, match='transforms.json.*no frames'):
         load_dataset(tmp_path)
     with pytest.raises(DatasetError, match='transforms.json'):

@@ -62,8 +62,8 @@ def test_unseen_fruits_are_reported_apart_and_excluded_from_recall_by_flag() -> 
 
 def test_radii_use_the_largest_semi_axis(tmp_path: Path) -> None:
     path = tmp_path / 'gt_fruits.json'
-    path.write_text(json.dumps({'fruits': [{'id': 7, 'type': 'pear', 'center': [0, 0, 0], 'radii': [0.03, 0.03,
-                                                                                                      0.05]}]}))
+    pear = {'id': 7, 'type': 'pear', 'center': [0, 0, 0], 'radii': [0.03, 0.03, 0.05]}
+    path.write_text(json.dumps({'fruits': [pear]}))
     gt = load_ground_truth(path)
     assert gt.ids.tolist() == [7] and gt.diameters.tolist() == [0.1] and gt.n_views_visible.tolist() == [-1]
     assert gt.seen.tolist() == [True]

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fruitnerfpp_ros.core.segmentation.instance_maps import (instance_map_from_masks, mask_solidity,
-                                                            relabel_sequential)
+                                                             relabel_sequential)
 from fruitnerfpp_ros.errors import SegmentationError
 
 

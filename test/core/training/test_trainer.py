@@ -127,8 +127,8 @@ def test_density_bias_is_the_configured_one_or_automatic(scene: Path, tmp_path: 
     trained = load_trained_scene(tmp_path / 'run', device='cpu')
     automatic = math.log(0.5 * config.render.occupancy_threshold / trained.march_step)
     # one Adam step of the geometry stage moves the bias by about lr; later stages freeze it
-    assert float(trained.field.density_mlp[-1].bias[0]) == pytest.approx(automatic if bias is None else bias,
-                                                                        abs=2 * config.geometry.lr)
+    expected = automatic if bias is None else bias
+    assert float(trained.field.density_mlp[-1].bias[0]) == pytest.approx(expected, abs=2 * config.geometry.lr)
 
 
 def test_outer_field_trains_with_the_geometry_and_reloads(scene: Path, tmp_path: Path) -> None:
