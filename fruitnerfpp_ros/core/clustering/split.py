@@ -4,6 +4,9 @@ HDBSCAN's excess-of-mass selection keeps two touching fruits as one cluster when
 persistent than the two halves, even with clearly different embeddings. Fruits of one orchard are alike in size,
 so a cluster wider than ``split_diameter_factor`` times the median cluster diameter is clustered again on its own
 with leaf selection (which prefers the finer clusters); the split is kept when it finds at least two fruits.
+With fewer than three clusters there is no typical fruit: every cluster is a candidate (a cloud whose fruit points
+all touch can come out of HDBSCAN as one giant cluster), and its split is kept only when the cluster is wider than
+``split_diameter_factor`` times the parts' median diameter (several fruits, not the halves of one).
 """
 
 from __future__ import annotations
@@ -44,9 +47,9 @@ def split_oversized(xyz: np.ndarray, embedding: np.ndarray, labels: np.ndarray, 
     if config.split_diameter_factor <= 0:
         return labels, 0
     diameters = cluster_diameters(xyz, labels)
-    if len(diameters) < 3:  # no meaningful "typical fruit"
-        return labels, 0
-    limit = config.split_diameter_factor * float(np.median([d for d, _ in diameters.values()]))
+    # Fewer than three clusters give no typical fruit (one giant cluster and a stray one, say): each is a candidate.
+    limit = config.split_diameter_factor * float(np.median([d for d, _ in diameters.values()])) \
+        if len(diameters) >= 3 else 0.0
     leaf = dataclasses.replace(config, cluster_selection_method='leaf')
     out, next_label, n_split = labels.copy(), int(labels.max()) + 1, 0
     for diameter, members in diameters.values():
@@ -57,6 +60,11 @@ def split_oversized(xyz: np.ndarray, embedding: np.ndarray, labels: np.ndarray, 
         parts = np.flatnonzero(sizes >= config.min_fruit_points)
         if len(parts) < 2:
             continue
+        if limit == 0.0:  # no typical fruit: the parts themselves must be much smaller (not halves of one fruit)
+            part_diameters = [fruit_diameter(p, np.median(p, axis=0))
+                              for p in (xyz[members][local == k] for k in parts)]
+            if diameter <= config.split_diameter_factor * float(np.median(part_diameters)):
+                continue
         new = np.full(len(members), -1, np.int64)
         for part in parts:
             new[local == part] = next_label
