@@ -82,3 +82,15 @@ def test_help_does_not_import_torch() -> None:
             'print("torch" in sys.modules)')
     out = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == 'False'
+
+
+def test_frames_naming_deleted_masks_get_new_ones(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A dataset copied without its mask folders still names them: those frames have no masks."""
+    from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
+    dataset = tmp_path / 'apples'
+    generate_orchard(SynthConfig(fruit='apple', count=8, views=3, resolution=(64, 64), seed=1), dataset)
+    shutil.rmtree(dataset / 'instances')
+    shutil.rmtree(dataset / 'semantics')
+    assert main(['segment', str(dataset), '--quiet']) == 0
+    assert 'segmented 3 images' in capsys.readouterr().out
+    assert load_dataset(dataset).instance_masks.shape == (3, 64, 64)

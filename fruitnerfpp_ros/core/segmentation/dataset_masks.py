@@ -77,7 +77,10 @@ def _targets(dataset_dir: Path, transforms: TransformsFile) -> list[tuple[str, s
 
 
 def check_no_masks(dataset_dir: str | Path, transforms: TransformsFile | None = None) -> None:
-    """Refuse a dataset whose frames already name masks, or whose new mask files would replace existing files.
+    """Refuse a dataset whose frames' masks exist (the files they name, or the files the new masks would go to).
+
+    A frame that names a mask file which does not exist (masks deleted, a dataset copied without them) counts as
+    having none: its masks are made.
 
     Raises:
         SegmentationError: naming how many frames have masks and the first one.
@@ -85,10 +88,13 @@ def check_no_masks(dataset_dir: str | Path, transforms: TransformsFile | None = 
     """
     dataset_dir = Path(dataset_dir)
     transforms = transforms if transforms is not None else read_transforms(dataset_dir)
-    taken = [(frame.file_path, frame.instance_path or instance_path) for frame, (instance_path, semantic_path)
-             in zip(transforms.frames, _targets(dataset_dir, transforms))
-             if frame.instance_path is not None or frame.semantic_path is not None
-             or (dataset_dir / instance_path).exists() or (dataset_dir / semantic_path).exists()]
+
+    def exists(path: str | None) -> bool:
+        return path is not None and (dataset_dir / path).exists()
+
+    taken = [(frame.file_path, frame.instance_path if exists(frame.instance_path) else instance_path)
+             for frame, (instance_path, semantic_path) in zip(transforms.frames, _targets(dataset_dir, transforms))
+             if any(exists(p) for p in (frame.instance_path, frame.semantic_path, instance_path, semantic_path))]
     if taken:
         raise SegmentationError(f'{dataset_dir}: {len(taken)} of {len(transforms.frames)} frames already have '
                                 f'instance masks (first: {taken[0][0]} -> {taken[0][1]}); pass --overwrite '
