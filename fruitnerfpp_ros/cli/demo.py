@@ -77,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--resolution', type=int, default=96, help='square image size, px')
     parser.add_argument('--trajectory', choices=('hemisphere', 'row'), default='hemisphere')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap', help='rosbag2 storage')
-    parser.add_argument('--preset', choices=('auto', 'tiny', 'default', 'paper'), default='auto',
+    parser.add_argument('--preset', choices=('auto', 'tiny', 'cpu', 'default', 'paper'), default='auto',
                         help='training preset (auto = default on CUDA, tiny on CPU)')
     parser.add_argument('--device', default='auto', help='torch device: auto, cpu, cuda, cuda:N')
     parser.add_argument('--seed', type=int, default=0)

@@ -106,7 +106,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           'dataset has gt_fruits.json.')
     p.add_argument('data_dir', type=Path, help='transforms.json dataset directory')
     p.add_argument('--out', type=Path, required=True, help='run directory')
-    p.add_argument('--preset', default='tiny', help='training preset: tiny, default, paper (default tiny)')
+    p.add_argument('--preset', default='tiny', help='training preset: tiny, cpu, default, paper (default tiny)')
     p.add_argument('--device', default='auto', help='auto, cpu, cuda, cuda:N')
     p.add_argument('--config', type=Path, help='YAML with optional sections train / export / clustering')
     p.add_argument('--resume', action='store_true', help='continue training from RUN_DIR')

@@ -58,7 +58,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('dataset', metavar='DATA_DIR', help='dataset directory holding transforms.json')
     parser.add_argument('--out', required=True, metavar='RUN_DIR', help='run directory (config, checkpoints, metrics)')
     parser.add_argument('--preset', default='default',
-                        help='hyper-parameter preset: tiny (CPU tests), default (GPU), paper (long schedule)')
+                        help='hyper-parameter preset: tiny (CPU tests), cpu (a real tree on a CPU), default (GPU), '
+                             'paper (long schedule)')
     parser.add_argument('--device', default='auto', help='auto, cpu or cuda[:N] (default: auto)')
     parser.add_argument('--resume', action='store_true', help='continue from RUN_DIR/checkpoints/latest.pt')
     parser.add_argument('--config', metavar='FILE.yaml', help='YAML with TrainConfig values overriding the preset')

@@ -51,3 +51,10 @@ def test_pipeline_configs_auto_preset_and_overrides(tmp_path: Path) -> None:
     override.write_text('train:\n  geometry:\n    iterashuns: 7\n')
     with pytest.raises(ConfigError, match='iterashuns'):
         pipeline_configs(settings_from_parameters({'config_file': str(override)}))
+
+
+def test_the_documented_parameter_tables_are_the_declared_ones() -> None:
+    from fruitnerfpp_ros.nodes.params import parameter_table
+    root = Path(__file__).resolve().parents[2]
+    for doc in ('README.md', 'docs/ros_interface.md'):
+        assert parameter_table() in (root / doc).read_text(), f'{doc}: regenerate with nodes.params.parameter_table()'

@@ -21,8 +21,11 @@ def test_yaml_presets_match_python(name: str) -> None:
 
 
 def test_presets_scale_up() -> None:
-    tiny, default, paper = (TrainConfig.preset(n) for n in PRESET_NAMES)
-    assert tiny.geometry.iterations < default.geometry.iterations < paper.geometry.iterations
+    tiny, cpu, default, paper = (TrainConfig.preset(n) for n in PRESET_NAMES)
+    assert tiny.geometry.iterations < cpu.geometry.iterations < default.geometry.iterations \
+        < paper.geometry.iterations
+    assert cpu.field == tiny.field and cpu.instance == tiny.instance
+    assert cpu.geometry.batch_rays > tiny.geometry.batch_rays
     assert default.instance.groups == 4 and default.instance.group_size == 8 and default.instance.pixels_per_fruit == 32
     assert default.instance.temperature == 0.2 and default.field.embedding_dim == 32
     with pytest.raises(ConfigError, match='huge'):
@@ -40,3 +43,16 @@ def test_cli_config_overrides_and_errors(tmp_path: Path, capsys: pytest.CaptureF
     code = main(['train', str(tmp_path / 'missing'), '--out', str(tmp_path / 'run'), '--device', 'cpu'])
     err = capsys.readouterr().err
     assert code == 2 and 'transforms.json' in err and 'Traceback' not in err
+
+
+def test_every_preset_is_offered_by_the_commands_and_the_node() -> None:
+    import typing
+
+    from fruitnerfpp_ros.cli.main import build_parser
+    from fruitnerfpp_ros.nodes.params import CounterSettings
+    hints = typing.get_type_hints(CounterSettings)
+    assert typing.get_args(hints['preset']) == ('auto', *PRESET_NAMES)
+    sub = next(a for a in build_parser()._actions if a.dest == 'command').choices
+    for command in ('replay', 'demo'):
+        preset = next(a for a in sub[command]._actions if a.dest == 'preset')
+        assert tuple(preset.choices) == ('auto', *PRESET_NAMES), command
