@@ -20,6 +20,7 @@ import numpy as np
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer
 from fruitnerfpp_ros.core.geometry import (principal_point_transforms_from_ros, quaternion_from_transform,
                                            transform_from_quaternion)
 from fruitnerfpp_ros.errors import ConversionError
@@ -28,7 +29,7 @@ __all__ = [
     'REPORT_SCHEMA', 'REPORT_VERSION', 'CLOUD_DTYPE', 'CameraModel',
     'stamp_ns_from_header', 'time_msg_from_ns',
     'image_from_msg', 'mask_from_msg', 'camera_model_from_camera_info', 'intrinsics_from_camera_info',
-    'undistort_image', 'undistort_mask', 'transform_from_pose_msg', 'transform_from_transform_msg',
+    'undistort_image', 'undistort_mask', 'transform_from_pose_msg', 'transform_from_transform_msg', 'add_tf_message',
     'pose_msg_from_transform', 'cloud_msg_from_points', 'points_from_cloud_msg', 'pose_array_from_centers',
     'markers_from_fruits', 'report_from_count', 'report_json', 'image_msg_from_array',
     'camera_info_msg_from_intrinsics',
@@ -275,6 +276,26 @@ def transform_from_transform_msg(transform: Any, *, topic: str = 'tf') -> np.nda
     transform = getattr(transform, 'transform', transform)
     t, q = transform.translation, transform.rotation
     return _checked_transform(np.array([t.x, t.y, t.z], float), np.array([q.x, q.y, q.z, q.w], float), topic)
+
+
+def add_tf_message(buffer: TfBuffer, msg: Any, *, static: bool = False) -> int:
+    """Store every transform of a ``tf2_msgs/TFMessage`` (rclpy or rosbags) in ``buffer``; returns how many.
+
+    Transforms that are not finite are skipped (and raise after the others were stored).
+    """
+    stored, bad = 0, []
+    for ts in msg.transforms:
+        try:
+            T = transform_from_transform_msg(ts, topic=f'tf {ts.header.frame_id}->{ts.child_frame_id}')
+        except ConversionError as err:
+            bad.append(str(err))
+            continue
+        buffer.set_transform(str(ts.header.frame_id), str(ts.child_frame_id), stamp_ns_from_header(ts.header), T,
+                             static=static)
+        stored += 1
+    if bad:
+        raise ConversionError('; '.join(bad))
+    return stored
 
 
 def pose_msg_from_transform(T: np.ndarray) -> Any:

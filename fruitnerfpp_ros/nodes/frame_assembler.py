@@ -21,14 +21,14 @@ import numpy as np
 
 from fruitnerfpp_ros.core.data.keyframe_store import Keyframe, KeyframeDecision, KeyframeStore
 from fruitnerfpp_ros.core.geometry import transform_from_quaternion
+from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer, TfFutureError, TfLookupError
+from fruitnerfpp_ros.core.streams.time_sync import ApproximateTimeSynchronizer, SyncedSet
 from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
-from fruitnerfpp_ros.nodes.conversions import (CameraModel, camera_model_from_camera_info, image_from_msg,
-                                               stamp_ns_from_header, transform_from_pose_msg, undistort_image,
-                                               undistort_mask)
+from fruitnerfpp_ros.nodes.conversions import (CameraModel, add_tf_message, camera_model_from_camera_info,
+                                               image_from_msg, stamp_ns_from_header, transform_from_pose_msg,
+                                               undistort_image, undistort_mask)
 from fruitnerfpp_ros.nodes.mask_source import MaskSource, mask_source_from_settings
 from fruitnerfpp_ros.nodes.params import CounterSettings
-from fruitnerfpp_ros.nodes.tf_buffer import TfBuffer, TfFutureError, TfLookupError
-from fruitnerfpp_ros.nodes.time_sync import ApproximateTimeSynchronizer, SyncedSet
 
 __all__ = ['LogFunction', 'FrameAssembler', 'ThrottledLog']
 
@@ -124,7 +124,7 @@ class FrameAssembler:
 
     def _dispatch(self, role: str, msg: Any) -> list[KeyframeDecision]:
         if role in ('tf', 'tf_static'):
-            self.tf.add_tf_message(msg, static=role == 'tf_static')
+            add_tf_message(self.tf, msg, static=role == 'tf_static')
             return self._drain()
         if role == 'camera_info':
             camera = camera_model_from_camera_info(msg, topic=self.settings.camera_info_topic)

@@ -14,6 +14,7 @@ from visualization_msgs.msg import Marker
 
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer
 from fruitnerfpp_ros.errors import ConversionError
 from fruitnerfpp_ros.nodes import conversions as cv
 
@@ -169,3 +170,18 @@ def test_centers_markers_and_report() -> None:
     assert report['stamp'] == {'sec': 2, 'nanosec': 1} and report['frame_id'] == 'map'
     assert report['fruits'][1]['center'] == [1.0, 1.0, 1.0] and report['fruits'][0]['diameter'] == 0.07
     assert report['keyframes'] == 9 and report['run_id'] == 'run-x'
+
+
+def _ts(parent: str, child: str, x: float) -> SimpleNamespace:
+    return SimpleNamespace(header=SimpleNamespace(frame_id=parent, stamp=SimpleNamespace(sec=1, nanosec=0)),
+                           child_frame_id=child, transform=SimpleNamespace(
+                               translation=SimpleNamespace(x=x, y=0.0, z=0.0),
+                               rotation=SimpleNamespace(x=0.0, y=0.0, z=0.0, w=1.0)))
+
+
+def test_tf_message_with_a_nan_transform_keeps_the_good_ones() -> None:
+    tf = TfBuffer()
+    msg = SimpleNamespace(transforms=[_ts('map', 'a', 1.0), _ts('map', 'b', float('nan'))])
+    with pytest.raises(ConversionError, match='map->b'):
+        cv.add_tf_message(tf, msg)
+    assert np.allclose(tf.lookup('map', 'a', 1_000_000_000)[:3, 3], [1, 0, 0])

@@ -2,14 +2,11 @@
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 
 from fruitnerfpp_ros.core.geometry import transform_from_quaternion
-from fruitnerfpp_ros.errors import ConversionError
-from fruitnerfpp_ros.nodes.tf_buffer import TfBuffer, TfFutureError, TfLookupError
+from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer, TfFutureError, TfLookupError
 
 
 def _T(x: float, yaw_deg: float = 0.0) -> np.ndarray:
@@ -39,18 +36,3 @@ def test_future_unknown_and_disconnected() -> None:
     tf.set_transform('other', 'cam', 0, np.eye(4), static=True)
     with pytest.raises(TfLookupError, match='not connected'):
         tf.lookup('map', 'cam', 100)
-
-
-def _ts(parent: str, child: str, x: float) -> SimpleNamespace:
-    return SimpleNamespace(header=SimpleNamespace(frame_id=parent, stamp=SimpleNamespace(sec=1, nanosec=0)),
-                           child_frame_id=child, transform=SimpleNamespace(
-                               translation=SimpleNamespace(x=x, y=0.0, z=0.0),
-                               rotation=SimpleNamespace(x=0.0, y=0.0, z=0.0, w=1.0)))
-
-
-def test_tf_message_with_a_nan_transform_keeps_the_good_ones() -> None:
-    tf = TfBuffer()
-    msg = SimpleNamespace(transforms=[_ts('map', 'a', 1.0), _ts('map', 'b', float('nan'))])
-    with pytest.raises(ConversionError, match='map->b'):
-        tf.add_tf_message(msg)
-    assert np.allclose(tf.lookup('map', 'a', 1_000_000_000)[:3, 3], [1, 0, 0])

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from fruitnerfpp_ros.nodes.time_sync import ApproximateTimeSynchronizer
+from fruitnerfpp_ros.core.streams.time_sync import ApproximateTimeSynchronizer
 
 MS = 1_000_000
 

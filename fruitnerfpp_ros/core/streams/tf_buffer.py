@@ -1,5 +1,7 @@
 """A small TF buffer (tf2_ros is not on PyPI): stores /tf and /tf_static, composes chains, interpolates in time.
 
+ROS-free: it holds 4x4 transforms; ``nodes.conversions.add_tf_message`` feeds it ``tf2_msgs/TFMessage`` messages.
+
 Every child frame has one parent (the TF tree). Static edges hold one transform; dynamic edges keep a time
 series (bounded by ``cache_ns``) and are interpolated to the requested stamp with
 :func:`fruitnerfpp_ros.core.geometry.interpolate_transform`.
@@ -8,8 +10,6 @@ series (bounded by ``cache_ns``) and are interpolated to the requested stamp wit
 from __future__ import annotations
 
 import bisect
-from typing import Any
-
 import numpy as np
 
 from fruitnerfpp_ros.core.geometry import interpolate_transform, invert_transform
@@ -72,26 +72,6 @@ class TfBuffer:
         cut = bisect.bisect_left(edge.stamps, edge.stamps[-1] - self.cache_ns)
         if cut:
             del edge.stamps[:cut], edge.transforms[:cut]
-
-    def add_tf_message(self, msg: Any, *, static: bool = False) -> int:
-        """Store every transform of a ``tf2_msgs/TFMessage`` (rclpy or rosbags); returns how many were stored.
-
-        Transforms that are not finite are skipped (and raise after the others were stored).
-        """
-        from fruitnerfpp_ros.nodes.conversions import stamp_ns_from_header, transform_from_transform_msg
-        stored, bad = 0, []
-        for ts in msg.transforms:
-            try:
-                T = transform_from_transform_msg(ts, topic=f'tf {ts.header.frame_id}->{ts.child_frame_id}')
-            except ConversionError as err:
-                bad.append(str(err))
-                continue
-            self.set_transform(str(ts.header.frame_id), str(ts.child_frame_id), stamp_ns_from_header(ts.header),
-                               T, static=static)
-            stored += 1
-        if bad:
-            raise ConversionError('; '.join(bad))
-        return stored
 
     def _edge_transform(self, child: str, edge: _Edge, stamp_ns: int) -> np.ndarray:
         if edge.static is not None:

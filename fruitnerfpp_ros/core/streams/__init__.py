@@ -1,0 +1,1 @@
+"""Stamped input streams without ROS: approximate-time synchronisation and a TF tree buffer."""
