@@ -60,6 +60,9 @@ def register(subparsers: Any) -> None:
     parser.add_argument('--trajectory', help='hemisphere (default) or row')
     parser.add_argument('--seed', help='random seed (default 0)')
     parser.add_argument('--device', help='auto (default), cpu or cuda')
+    parser.add_argument('--pose-noise', nargs=2, metavar=('METRES', 'DEGREES'),
+                        help='odometry error: per-axis standard deviations of noise on the recorded camera positions '
+                             'and orientations (images stay rendered from the true poses)')
     parser.add_argument('--out', required=True, help='output dataset directory')
     parser.add_argument('--bag', help='also write a rosbag2 directory here')
     parser.add_argument('--bag-storage', default='mcap', help='mcap (default) or sqlite3')
@@ -95,6 +98,11 @@ def run(args: argparse.Namespace) -> int:
         overrides['seed'] = _int(args.seed, '--seed')
     if args.device is not None:
         overrides['device'] = args.device
+    if args.pose_noise is not None:
+        try:
+            overrides['pose_noise_m'], overrides['pose_noise_deg'] = (float(v) for v in args.pose_noise)
+        except ValueError:
+            raise SynthError(f'--pose-noise: expected two numbers (metres, degrees), got {args.pose_noise}') from None
     config = dataclasses.replace(base, **overrides)
 
     bar: Any = None

@@ -41,6 +41,11 @@ class SynthConfig:
     """Torch device for rendering: auto (CUDA when present), cpu, cuda."""
     sparse_points: int = 4000
     """Points in ``sparse_pc.ply`` (visible surface points, like a COLMAP sparse cloud)."""
+    pose_noise_m: float = 0.0
+    """Odometry error: standard deviation (m, per axis) of noise on the recorded camera positions (transforms.json
+    and the bag); the images are rendered from the true poses."""
+    pose_noise_deg: float = 0.0
+    """Standard deviation (degrees, per axis) of a rotation noise on the recorded camera orientations."""
 
     def __post_init__(self) -> None:
         known = (*FRUIT_NAMES, MIXED)
@@ -56,6 +61,10 @@ class SynthConfig:
                 or min(res) < 8 or max(res) > 8192):
             raise SynthError(f'resolution must be (width, height) with 8..8192 px each, got {self.resolution!r}')
         object.__setattr__(self, 'resolution', res)
+        for name in ('pose_noise_m', 'pose_noise_deg'):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0.0 <= value < 1e3:
+                raise SynthError(f'{name} must be a number >= 0, got {value!r}')
         if self.trajectory not in TRAJECTORIES:
             raise SynthError(f'unknown trajectory {self.trajectory!r}; expected one of {", ".join(TRAJECTORIES)}')
         if not 10.0 <= float(self.fov_deg) <= 120.0:

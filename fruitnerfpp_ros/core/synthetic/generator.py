@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from fruitnerfpp_ros.core.config_io import config_to_mapping
@@ -120,6 +121,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     preview_rgb, preview_inst, preview_labels = [], [], []
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9C]))
     per_view = int(np.ceil(config.sparse_points / config.views)) if config.sparse_points else 0
+    recorded = _noisy_poses(poses, config)
     pc_points, pc_colors = [], []
     frames = []
     bag_ctx = BagWriter(bag, bag_storage) if bag is not None else contextlib.nullcontext()
@@ -133,14 +135,14 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
             write_mask_png(out_dir / 'semantics' / name, view.instance > 0)
             seen += np.bincount(view.instance.reshape(-1).astype(np.int64), minlength=n_fruits + 1) > 0
             stamp_ns = BAG_START_NS + i * FRAME_PERIOD_NS
-            frames.append(FrameEntry(f'images/{name}', T, f'instances/{name}', f'semantics/{name}',
+            frames.append(FrameEntry(f'images/{name}', recorded[i], f'instances/{name}', f'semantics/{name}',
                                      stamp_ns=stamp_ns))
             if per_view:
                 pts, cols = _sample_surface(view.depth, view.rgb, T, K, per_view, scene.bound_radius, rng)
                 pc_points.append(pts)
                 pc_colors.append(cols)
             if bag_writer is not None:
-                bag_writer.write_frame(stamp_ns, view.rgb, view.instance, T, K)
+                bag_writer.write_frame(stamp_ns, view.rgb, view.instance, recorded[i], K)
             if i in preview_idx:
                 preview_rgb.append(view.rgb)
                 preview_inst.append(view.instance)
@@ -170,6 +172,23 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     return SynthResult(out_dir, n_fruits, config.views, gt_path, transforms_path,
                        Path(bag) if bag is not None else None, preview_path, int(np.count_nonzero(seen[1:])),
                        time.perf_counter() - started)
+
+
+def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> list[np.ndarray]:
+    """The poses as a robot would record them: with ``pose_noise_m`` / ``pose_noise_deg`` Gaussian errors (its own
+    random stream, so noise-free datasets stay byte-identical)."""
+    poses = [np.asarray(T, dtype=np.float64) for T in poses]
+    if config.pose_noise_m == 0 and config.pose_noise_deg == 0:
+        return poses
+    rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9D]))
+    out = []
+    for T in poses:
+        noisy = T.copy()
+        rotvec = np.radians(config.pose_noise_deg) * rng.normal(size=3)
+        noisy[:3, :3] = T[:3, :3] @ cv2.Rodrigues(rotvec)[0]
+        noisy[:3, 3] = T[:3, 3] + config.pose_noise_m * rng.normal(size=3)
+        out.append(noisy)
+    return out
 
 
 def _sample_surface(depth: np.ndarray, rgb: np.ndarray, T_world_camera: np.ndarray, K: CameraIntrinsics, count: int,
