@@ -50,7 +50,7 @@ def march_rays(rays: RayBundle, grid: OccupancyGrid, step: float, *, near: float
     t_near, t_far = intersect_aabb(rays, grid.aabb, near)
     n = rays.origins.shape[0]
     span = (t_far - t_near).clamp_min(0.0)
-    k = max(1, int(math.ceil(float(span.max()) / step))) if n else 1
+    k = max(1, int(math.ceil(float(span.detach().max()) / step))) if n else 1
     offset = torch.full_like(t_near, 0.5) if jitter is None else jitter.to(t_near)
     t = t_near[:, None] + (torch.arange(k, device=t_near.device, dtype=t_near.dtype)[None] + offset[:, None]) * step
     valid = t < t_far[:, None]

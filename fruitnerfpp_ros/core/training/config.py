@@ -94,6 +94,9 @@ class GeometryStageConfig:
     """Learning rate at the last step, as a fraction of ``lr``."""
     distortion_weight: float = 0.01
     """Weight of the distortion loss (1/m): pulls each ray's weight together, against floaters and fog."""
+    pose_lr: float = 0.0
+    """Adam learning rate of the per-view pose corrections (radians, metres; pose_refinement.py), trained in
+    stages 1 and 2 and decayed like ``lr``; 0 = the recorded poses are used as they are."""
 
 
 @dataclass(frozen=True)

@@ -33,6 +33,7 @@ from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_check
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.losses import photometric_loss, prototype_infonce, semantic_loss
 from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, psnr_from_mse
+from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
 from fruitnerfpp_ros.core.training.run_dir import RunDir
 from fruitnerfpp_ros.errors import CheckpointError, DatasetError, TrainingError
 
@@ -189,6 +190,9 @@ class _Session:
         self.images = dataset.images.to(device)
         self.semantics = dataset.semantic_masks.to(device)
         self.poses = dataset.T_world_camera.to(device)
+        trained = torch.zeros(len(self.poses), dtype=torch.bool)
+        trained[dataset.train_indices] = True
+        self.pose_refinement = PoseRefinement(trained).to(device) if config.geometry.pose_lr > 0 else None
         self.intrinsics = dataset.intrinsics.to(device)
         self.stage = 0
         self.step = 0
@@ -210,6 +214,7 @@ class _Session:
             'summaries': [(s.name, s.steps, s.wall_s, s.final_loss, tuple(s.eval)) for s in self.summaries],
             'field': self.field.state_dict(),
             'grid': self.grid.state_dict(),
+            'poses': None if self.pose_refinement is None else self.pose_refinement.state_dict(),
             'optimizer': None if self.optimizer is None else self.optimizer.state_dict(),
             'generator': self.generator.get_state(),
             'torch_rng': torch.get_rng_state(),
@@ -222,6 +227,8 @@ class _Session:
     def restore(self, state: dict[str, Any]) -> None:
         self.field.load_state_dict(state['field'])
         self.grid.load_state_dict(state['grid'])
+        if self.pose_refinement is not None:
+            self.pose_refinement.load_state_dict(state['poses'])
         self.generator.set_state(state['generator'])
         torch.set_rng_state(state['torch_rng'])
         np.random.set_state(state['numpy_rng'])
@@ -238,17 +245,21 @@ class _Session:
         return (self.config.geometry, self.config.semantic, self.config.instance)[stage]
 
     def make_optimizer(self, stage: int) -> torch.optim.Optimizer:
+        geometry = self.config.geometry
+        poses = [] if self.pose_refinement is None else list(self.pose_refinement.parameters())
         if stage == 0:
-            groups = [{'params': list(self.field.geometry_parameters()), 'scale': 1.0}]
+            groups = [{'params': list(self.field.geometry_parameters()), 'scale': 1.0},
+                      {'params': poses, 'scale': geometry.pose_lr / geometry.lr}]
         elif stage == 1:
-            # density and colour keep training at the learning rate stage 1 ended with
-            geometry = self.config.geometry
-            scale = geometry.lr * geometry.lr_final_factor / self.config.semantic.lr
+            # density, colour and poses keep training at the learning rates stage 1 ended with
+            scale = geometry.lr_final_factor / self.config.semantic.lr
             groups = [{'params': list(self.field.semantic_parameters()), 'scale': 1.0},
-                      {'params': list(self.field.geometry_parameters()), 'scale': scale}]
+                      {'params': list(self.field.geometry_parameters()), 'scale': geometry.lr * scale},
+                      {'params': poses, 'scale': geometry.pose_lr * scale}]
         else:
             groups = [{'params': list(self.field.instance_parameters()), 'scale': 1.0}]
-        for p in self.field.parameters():
+        groups = [g for g in groups if g['params']]
+        for p in [*self.field.parameters(), *poses]:
             p.requires_grad_(False)
         for group in groups:
             for p in group['params']:
@@ -265,6 +276,10 @@ class _Session:
             group['lr'] = lr * group['scale']
         return lr
 
+    def current_poses(self) -> torch.Tensor:
+        """The camera-to-world poses [V, 4, 4] the rays use: the recorded ones, corrected when refined."""
+        return self.poses if self.pose_refinement is None else self.pose_refinement(self.poses)
+
     def train_step(self, sampler: UniformPixelSampler | GroupInstanceSampler) -> dict[str, float]:
         """One optimisation step of the current stage; returns its logged values."""
         assert self.optimizer is not None
@@ -279,7 +294,7 @@ class _Session:
             pixels = sampler.sample(self.generator)
         jitter = torch.rand(len(pixels.view), generator=self.generator)
         view, row, col = (t.to(self.device) for t in (pixels.view, pixels.row, pixels.col))
-        rays = rays_for_pixels(self.poses, self.intrinsics, view, row, col)
+        rays = rays_for_pixels(self.current_poses(), self.intrinsics, view, row, col)
         if self.stage < 2:
             semantic = self.stage == 1
             out = render_rays(self.field, self.grid, rays, self.settings, jitter=jitter.to(self.device),
@@ -315,6 +330,10 @@ class _Session:
         if self.stage < 2 and self.step % self.config.render.occupancy_update_every == 0:
             self.grid.update(lambda xyz: self.geometry_fn(xyz).density, self.settings.step, self.generator)
         scalars['loss'] = loss.detach()
+        if self.pose_refinement is not None and self.stage < 2:
+            correction = self.pose_refinement.correction.detach()
+            scalars['pose_rot_deg'] = torch.rad2deg(correction[:, :3].norm(dim=-1).max())
+            scalars['pose_trans_m'] = correction[:, 3:].norm(dim=-1).max()
         values = dict(zip(scalars, torch.stack([v.float() for v in scalars.values()]).tolist()))
         record: dict[str, float] = {'lr': lr}
         if 'photo' in values:

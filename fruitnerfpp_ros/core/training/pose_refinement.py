@@ -1,0 +1,52 @@
+"""Per-view camera pose corrections learned with the fields (robot odometry is not exact).
+
+Each training view gets a 6-vector: a rotation (axis times angle, radians, in the camera's own frame) and a
+translation (metres, in the world frame). The corrections start at zero, train with the geometry (stages 1 and 2)
+through the photometric loss, and stay fixed in stage 3. The mean translation over the trained views is removed
+(the gauge: moving every camera by the same offset would move the whole reconstruction away from the world frame
+the ground truth and the outputs live in). Held-out views keep their recorded pose.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+__all__ = ['PoseRefinement', 'rotation_from_axis_angle']
+
+
+def rotation_from_axis_angle(rotvec: torch.Tensor) -> torch.Tensor:
+    """Rotation matrices [N, 3, 3] of axis-angle vectors [N, 3] (Rodrigues; exact and differentiable at 0)."""
+    theta2 = (rotvec * rotvec).sum(-1, keepdim=True)[..., None]                   # [N, 1, 1]
+    x, y, z = rotvec.unbind(-1)
+    zero = torch.zeros_like(x)
+    K = torch.stack([zero, -z, y, z, zero, -x, -y, x, zero], -1).reshape(-1, 3, 3)
+    small = theta2 < 1e-8
+    theta = torch.sqrt(torch.where(small, torch.ones_like(theta2), theta2))
+    a = torch.where(small, 1.0 - theta2 / 6.0, torch.sin(theta) / theta)          # sin(t) / t
+    b = torch.where(small, 0.5 - theta2 / 24.0, (1.0 - torch.cos(theta)) / torch.where(small, 1.0, theta2))
+    eye = torch.eye(3, dtype=rotvec.dtype, device=rotvec.device).expand_as(K)
+    return eye + a * K + b * (K @ K)
+
+
+class PoseRefinement(nn.Module):
+    """Learned corrections of the camera-to-world poses of ``trained`` views.
+
+    Args:
+        trained: [V] bool, the views whose poses are refined (the training views).
+    """
+
+    def __init__(self, trained: torch.Tensor) -> None:
+        super().__init__()
+        self.register_buffer('trained', torch.as_tensor(trained, dtype=torch.bool).clone())
+        self.correction = nn.Parameter(torch.zeros(len(self.trained), 6))
+
+    def forward(self, T_world_camera: torch.Tensor) -> torch.Tensor:
+        """The corrected poses [V, 4, 4] of the recorded ones [V, 4, 4]."""
+        mask = self.trained[:, None].to(T_world_camera.dtype)
+        correction = self.correction.to(T_world_camera.dtype) * mask
+        shift = correction[:, 3:] - mask * correction[:, 3:].sum(0) / mask.sum().clamp_min(1.0)
+        out = T_world_camera.clone()
+        out[:, :3, :3] = T_world_camera[:, :3, :3] @ rotation_from_axis_angle(correction[:, :3])
+        out[:, :3, 3] = T_world_camera[:, :3, 3] + shift
+        return out

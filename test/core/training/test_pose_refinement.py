@@ -1,0 +1,77 @@
+"""Per-view pose corrections: the rotation map, the identity start, training in stages 1-2 only, resume."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from fruitnerfpp_ros.core.config_io import replace_nested
+from fruitnerfpp_ros.core.progress import ProgressEvent
+from fruitnerfpp_ros.core.training import RunDir, train
+from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
+from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement, rotation_from_axis_angle
+from test.core.training.stand_in_scene import make_sphere_scene
+from test.core.training.test_trainer import MICRO
+
+REFINED = replace_nested(MICRO, {'geometry': {'pose_lr': 1e-3}})
+
+
+@pytest.fixture(scope='module')
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_sphere_scene(tmp_path_factory.mktemp('spheres'), views=10, size=32, fruits=6, write_ply=True)
+
+
+def test_rotation_map_is_rodrigues_and_smooth_at_zero() -> None:
+    rotvec = torch.randn(6, 3, dtype=torch.float64)
+    rotvec[0] = 0.0
+    rotvec[1] *= 1e-6
+    expected = Rotation.from_rotvec(rotvec.numpy()).as_matrix()
+    np.testing.assert_allclose(rotation_from_axis_angle(rotvec).numpy(), expected, atol=1e-12)
+    rotvec.requires_grad_(True)
+    rotation_from_axis_angle(rotvec).sum().backward()
+    assert torch.isfinite(rotvec.grad).all()
+
+
+def test_corrections_start_at_zero_keep_held_out_views_and_remove_the_mean_shift() -> None:
+    poses = torch.eye(4).repeat(3, 1, 1)
+    poses[:, :3, 3] = torch.tensor([[1.0, 2.0, 3.0], [0.0, 0.0, 0.0], [-1.0, 0.0, 0.5]])
+    refinement = PoseRefinement(torch.tensor([True, True, False]))
+    assert torch.equal(refinement(poses), poses)
+    with torch.no_grad():
+        refinement.correction[0] = torch.tensor([0.0, 0.0, np.pi / 2, 0.1, 0.0, 0.0])
+        refinement.correction[2] = torch.tensor([0.3, 0.0, 0.0, 1.0, 1.0, 1.0])  # held out: ignored
+    corrected = refinement(poses).detach()
+    # the trained views' mean shift (0.05 m along x) is the gauge, not a correction
+    np.testing.assert_allclose(corrected[0, :3, 3].numpy(), [1.05, 2.0, 3.0], atol=1e-6)
+    np.testing.assert_allclose(corrected[1, :3, 3].numpy(), [-0.05, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(corrected[0, :3, 0].numpy(), [0.0, 1.0, 0.0], atol=1e-6)  # camera x turned to y
+    assert torch.equal(corrected[1, :3, :3], poses[1, :3, :3]) and torch.equal(corrected[2], poses[2])
+
+
+def _corrections(run: Path) -> torch.Tensor:
+    return load_checkpoint(RunDir(run).latest_checkpoint)['poses']['correction']
+
+
+def test_poses_train_in_the_first_two_stages_and_resume_exactly(scene: Path, tmp_path: Path) -> None:
+    stop = threading.Event()
+
+    def stop_in_semantic(event: ProgressEvent) -> None:
+        if event.phase == 'train:semantic' and event.step == 2:
+            stop.set()
+
+    train(scene, tmp_path / 'full', REFINED, device='cpu')
+    assert train(scene, tmp_path / 'split', REFINED, device='cpu', progress=stop_in_semantic, stop_event=stop).stopped
+    train(scene, tmp_path / 'split', None, device='cpu', resume=True)
+    full = _corrections(tmp_path / 'full')
+    assert torch.equal(full, _corrections(tmp_path / 'split'))   # resume is bit-exact with refinement on
+    assert float(full.abs().max()) > 0                             # the photometric loss moved the poses
+    one_instance_step = replace_nested(REFINED, {'instance': {'iterations': 1}})
+    train(scene, tmp_path / 'short', one_instance_step, device='cpu')
+    assert torch.equal(full, _corrections(tmp_path / 'short'))   # ... and the instance stage leaves them
+    logged = {r['stage'] for r in RunDir(tmp_path / 'full').read_metrics() if 'pose_rot_deg' in r}
+    assert logged == {'geometry', 'semantic'}
