@@ -252,10 +252,11 @@ class _Session:
                       {'params': poses, 'scale': geometry.pose_lr / geometry.lr}]
         elif stage == 1:
             # density, colour and poses keep training at the learning rates stage 1 ended with
-            scale = geometry.lr_final_factor / self.config.semantic.lr
+            semantic_lr = self.config.semantic.lr
             groups = [{'params': list(self.field.semantic_parameters()), 'scale': 1.0},
-                      {'params': list(self.field.geometry_parameters()), 'scale': geometry.lr * scale},
-                      {'params': poses, 'scale': geometry.pose_lr * scale}]
+                      {'params': list(self.field.geometry_parameters()),
+                       'scale': geometry.lr * geometry.lr_final_factor / semantic_lr},
+                      {'params': poses, 'scale': geometry.pose_lr * geometry.lr_final_factor / semantic_lr}]
         else:
             groups = [{'params': list(self.field.instance_parameters()), 'scale': 1.0}]
         groups = [g for g in groups if g['params']]
