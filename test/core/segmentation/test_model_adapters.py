@@ -131,3 +131,43 @@ def test_sam_masks_are_filtered_to_fruit_like_ones() -> None:
     ids = instance_map_from_sam_records(records, h, w, config)
     assert ids.max() == 1 and (ids == 1).sum() == fruit.sum()   # fruit2 scores 0.4 < score_threshold
     assert instance_map_from_sam_records([], h, w, config).shape == (h, w)
+
+
+def test_sam_adapter_drives_the_packages_api(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """With a stand-in ``segment_anything`` (the real one is not installable offline here): the adapter builds
+    the model from the local checkpoint, runs the automatic generator on the RGB image and keeps the fruit."""
+    import sys
+    import types
+
+    calls: dict[str, object] = {}
+
+    class FakeModel:
+        def to(self, device: object) -> 'FakeModel':
+            calls['device'] = str(device)
+            return self
+
+    class FakeGenerator:
+        def __init__(self, model: FakeModel, points_per_side: int) -> None:
+            calls['points_per_side'] = points_per_side
+
+        def generate(self, image: np.ndarray) -> list[dict[str, object]]:
+            calls['image'] = image.shape, image.dtype
+            yy, xx = np.mgrid[:image.shape[0], :image.shape[1]]
+            fruit = (xx - 30) ** 2 + (yy - 20) ** 2 <= 4 ** 2
+            return [{'segmentation': fruit, 'predicted_iou': 0.97}, {'segmentation': yy > 30, 'predicted_iou': 0.99}]
+
+    def build(checkpoint: str) -> FakeModel:
+        calls['checkpoint'] = checkpoint
+        return FakeModel()
+
+    fake = types.ModuleType('segment_anything')
+    fake.sam_model_registry = {'vit_b': build}  # type: ignore[attr-defined]
+    fake.SamAutomaticMaskGenerator = FakeGenerator  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, 'segment_anything', fake)
+    checkpoint = tmp_path / 'sam_vit_b.pth'
+    checkpoint.write_bytes(b'weights')
+    segmenter = build_segmenter(SegmenterConfig(method='sam', checkpoint=str(checkpoint), device='cpu'))
+    ids = segmenter(np.zeros((40, 60, 3), np.uint8))
+    assert calls['checkpoint'] == str(checkpoint) and calls['device'] == 'cpu'
+    assert calls['image'] == ((40, 60, 3), np.uint8)
+    assert ids.dtype == np.uint16 and ids.max() == 1 and (ids == 1).sum() == 49  # the disc; the ground is too big
