@@ -97,6 +97,8 @@ class GeometryStageConfig:
     pose_lr: float = 0.0
     """Adam learning rate of the per-view pose corrections (radians, metres; pose_refinement.py), trained in
     stages 1 and 2 and decayed like ``lr``; 0 = the recorded poses are used as they are."""
+    pose_start_fraction: float = 0.25
+    """The pose corrections start training after this fraction of stage 1 (a first geometry to align to)."""
 
 
 @dataclass(frozen=True)

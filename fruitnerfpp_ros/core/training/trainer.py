@@ -249,14 +249,15 @@ class _Session:
         poses = [] if self.pose_refinement is None else list(self.pose_refinement.parameters())
         if stage == 0:
             groups = [{'params': list(self.field.geometry_parameters()), 'scale': 1.0},
-                      {'params': poses, 'scale': geometry.pose_lr / geometry.lr}]
+                      {'params': poses, 'scale': geometry.pose_lr / geometry.lr, 'poses': True}]
         elif stage == 1:
             # density, colour and poses keep training at the learning rates stage 1 ended with
             semantic_lr = self.config.semantic.lr
             groups = [{'params': list(self.field.semantic_parameters()), 'scale': 1.0},
                       {'params': list(self.field.geometry_parameters()),
                        'scale': geometry.lr * geometry.lr_final_factor / semantic_lr},
-                      {'params': poses, 'scale': geometry.pose_lr * geometry.lr_final_factor / semantic_lr}]
+                      {'params': poses, 'scale': geometry.pose_lr * geometry.lr_final_factor / semantic_lr,
+                       'poses': True}]
         else:
             groups = [{'params': list(self.field.instance_parameters()), 'scale': 1.0}]
         groups = [g for g in groups if g['params']]
@@ -273,8 +274,11 @@ class _Session:
         fraction = self.step / max(cfg.iterations, 1)
         lr = cfg.lr * cfg.lr_final_factor ** fraction
         assert self.optimizer is not None
+        # Poses wait for a first geometry: Adam moves every parameter by about its learning rate per step, so
+        # corrections trained from the first step random-walk while the field is still noise.
+        hold = self.stage == 0 and fraction < self.config.geometry.pose_start_fraction
         for group in self.optimizer.param_groups:
-            group['lr'] = lr * group['scale']
+            group['lr'] = 0.0 if hold and group.get('poses') else lr * group['scale']
         return lr
 
     def current_poses(self) -> torch.Tensor:
