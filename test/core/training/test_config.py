@@ -26,6 +26,7 @@ def test_presets_scale_up() -> None:
         < paper.geometry.iterations
     assert cpu.field == tiny.field and cpu.instance == tiny.instance
     assert cpu.geometry.batch_rays > tiny.geometry.batch_rays
+    assert tiny.geometry.pose_lr == default.geometry.pose_lr == 0.0 < cpu.geometry.pose_lr  # exact test poses
     assert default.instance.groups == 4 and default.instance.group_size == 8 and default.instance.pixels_per_fruit == 32
     assert default.instance.temperature == 0.2 and default.field.embedding_dim == 32
     with pytest.raises(ConfigError, match='huge'):
