@@ -4,15 +4,21 @@ Each training view gets a 6-vector: a rotation (axis times angle, radians, in th
 translation (metres, in the world frame). The corrections start at zero, train with the geometry (stages 1 and 2)
 through the photometric loss, and stay fixed in stage 3. The mean translation over the trained views is removed
 (the gauge: moving every camera by the same offset would move the whole reconstruction away from the world frame
-the ground truth and the outputs live in). Held-out views keep their recorded pose.
+the ground truth and the outputs live in). Held-out views keep their recorded pose. At the end of stage 2 the
+run directory gets ``refined_poses.json`` (:func:`write_refined_poses`).
 """
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import torch
 from torch import nn
 
-__all__ = ['PoseRefinement', 'rotation_from_axis_angle']
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
+
+__all__ = ['PoseRefinement', 'rotation_from_axis_angle', 'write_refined_poses']
 
 
 def rotation_from_axis_angle(rotvec: torch.Tensor) -> torch.Tensor:
@@ -50,3 +56,28 @@ class PoseRefinement(nn.Module):
         out[:, :3, :3] = T_world_camera[:, :3, :3] @ rotation_from_axis_angle(correction[:, :3])
         out[:, :3, 3] = T_world_camera[:, :3, 3] + shift
         return out
+
+
+def write_refined_poses(path: Path, recorded: torch.Tensor, refined: torch.Tensor, file_paths: list[str],
+                        trained: torch.Tensor) -> Path:
+    """Write the recorded and refined poses of every view as JSON (what the odometry got wrong, per image).
+
+    Args:
+        path: output file.
+        recorded, refined: [V, 4, 4] camera-to-world poses, OpenGL camera axes (as transforms.json), metres.
+        file_paths: the V images, as transforms.json names them.
+        trained: [V] bool, the views that were refined (held-out views keep their recorded pose).
+    """
+    recorded = recorded.detach().double().cpu()
+    refined = refined.detach().double().cpu()
+    relative = torch.linalg.inv(recorded) @ refined
+    cos = ((relative[:, 0, 0] + relative[:, 1, 1] + relative[:, 2, 2] - 1.0) / 2.0).clamp(-1.0, 1.0)
+    angles = torch.rad2deg(torch.arccos(cos))
+    shifts = (refined[:, :3, 3] - recorded[:, :3, 3]).norm(dim=-1)
+    views = [{'index': i, 'file_path': name, 'refined': bool(trained[i]), 'rotation_deg': round(float(a), 4),
+              'translation_m': round(float(s), 5), 'transform_matrix': refined[i].tolist()}
+             for i, (name, a, s) in enumerate(zip(file_paths, angles, shifts))]
+    report = {'version': 1, 'frame': 'camera-to-world, OpenGL camera axes, metres (as transforms.json)',
+              'max_rotation_deg': round(float(angles.max()), 4) if len(views) else 0.0,
+              'max_translation_m': round(float(shifts.max()), 5) if len(views) else 0.0, 'views': views}
+    return atomic_write_text(path, json.dumps(report, indent=1))

@@ -18,6 +18,7 @@ class RunDir:
         RUN_DIR/config.yaml          resolved TrainConfig
         RUN_DIR/checkpoints/latest.pt  last periodic or stage-end checkpoint
         RUN_DIR/metrics.jsonl        one JSON object per logging step / stage-end evaluation
+        RUN_DIR/refined_poses.json   with pose refinement: recorded vs refined pose of every view
     """
 
     def __init__(self, root: str | Path) -> None:
@@ -38,6 +39,10 @@ class RunDir:
     @property
     def metrics_path(self) -> Path:
         return self.root / 'metrics.jsonl'
+
+    @property
+    def refined_poses_path(self) -> Path:
+        return self.root / 'refined_poses.json'
 
     def create(self) -> None:
         self.checkpoint_dir.mkdir(parents=True, exist_ok=True)

@@ -24,6 +24,7 @@ from fruitnerfpp_ros.core.data.bounds import scene_aabb
 from fruitnerfpp_ros.core.data.dataset import SceneDataset, load_dataset
 from fruitnerfpp_ros.core.data.rays import rays_for_pixels
 from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler
+from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
 from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent
@@ -33,7 +34,7 @@ from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_check
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.losses import photometric_loss, prototype_infonce, semantic_loss
 from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, psnr_from_mse
-from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
+from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement, write_refined_poses
 from fruitnerfpp_ros.core.training.run_dir import RunDir
 from fruitnerfpp_ros.errors import CheckpointError, DatasetError, TrainingError
 
@@ -467,6 +468,11 @@ def _train(dataset_dir: str | Path, run: RunDir, config: TrainConfig, state: dic
                            f'eval psnr {metrics.psnr:.2f} iou {metrics.semantic_iou:.3f} '
                            f'inst {metrics.instance_acc:.3f}'))
         session.summaries.append(summary)
+        if name == 'semantic' and session.pose_refinement is not None:  # the poses are final from here on
+            with torch.no_grad():
+                write_refined_poses(run.refined_poses_path, session.poses, session.current_poses(),
+                                    [f.file_path for f in read_transforms(dataset.dataset_dir).frames],
+                                    session.pose_refinement.trained)
         session.stage += 1
         session.step = 0
         session.stage_wall = 0.0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import threading
 from pathlib import Path
 
@@ -75,3 +76,8 @@ def test_poses_train_in_the_first_two_stages_and_resume_exactly(scene: Path, tmp
     assert torch.equal(full, _corrections(tmp_path / 'short'))   # ... and the instance stage leaves them
     logged = {r['stage'] for r in RunDir(tmp_path / 'full').read_metrics() if 'pose_rot_deg' in r}
     assert logged == {'geometry', 'semantic'}
+    report = json.loads(RunDir(tmp_path / 'full').refined_poses_path.read_text())
+    assert len(report['views']) == 10 and report['views'][0]['file_path'].startswith('images/')
+    held_out = [v for v in report['views'] if not v['refined']]
+    assert held_out and all(v['rotation_deg'] == 0.0 and v['translation_m'] == 0.0 for v in held_out)
+    assert 0.0 < report['max_rotation_deg'] < 5.0 and 0.0 < report['max_translation_m'] < 0.1
