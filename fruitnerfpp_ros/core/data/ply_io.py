@@ -17,7 +17,7 @@ from numpy.lib import recfunctions
 
 from fruitnerfpp_ros.core.atomic_io import atomic_write_bytes
 
-__all__ = ['PlyError', 'PLY_FORMATS', 'read_ply_comments', 'read_ply_vertices', 'write_ply_vertices']
+__all__ = ['PlyError', 'PLY_FORMATS', 'read_ply_vertices', 'read_ply_vertices_and_comments', 'write_ply_vertices']
 
 PLY_FORMATS = ('binary_little_endian', 'binary_big_endian', 'ascii')
 
@@ -46,17 +46,15 @@ def write_ply_vertices(path: str | Path, vertices: np.ndarray, *, comments: Iter
                               + vertices.astype(dtype, copy=False).tobytes())
 
 
-def read_ply_comments(path: str | Path) -> list[str]:
-    """The ``comment`` lines of a PLY header (without the keyword), in order; [] when there are none."""
-    with open(path, 'rb') as f:
-        head = f.read(65536)
-    end = head.find(b'end_header')
-    lines = head[:end if end >= 0 else len(head)].decode('ascii', errors='replace').splitlines()
-    return [line[len('comment '):].strip() for line in lines if line.startswith('comment ')]
-
-
 def read_ply_vertices(path: str | Path, *, formats: tuple[str, ...] = PLY_FORMATS) -> np.ndarray:
-    """The vertex element of a PLY file as a structured array (one field per property).
+    """The vertex element of a PLY file as a structured array (see :func:`read_ply_vertices_and_comments`)."""
+    return read_ply_vertices_and_comments(path, formats=formats)[0]
+
+
+def read_ply_vertices_and_comments(path: str | Path, *, formats: tuple[str, ...] = PLY_FORMATS,
+                                   ) -> tuple[np.ndarray, list[str]]:
+    """The vertex element of a PLY file as a structured array (one field per property), and the header's
+    ``comment`` lines (without the keyword, in order).
 
     Args:
         path: the PLY file.
@@ -73,10 +71,12 @@ def read_ply_vertices(path: str | Path, *, formats: tuple[str, ...] = PLY_FORMAT
     if not raw.startswith(b'ply') or end < 0:
         raise PlyError(f'{path}: not a PLY file (no "ply" magic / end_header)')
     body = raw[raw.find(b'\n', end) + 1:]
-    fmt, count, props, seen_element = None, None, [], False
+    fmt, count, props, seen_element, comments = None, None, [], False, []
     for line in raw[:end].decode('ascii', errors='replace').splitlines():
         words = line.split()
-        if words[:1] == ['format']:
+        if words[:1] == ['comment']:
+            comments.append(line[len('comment'):].strip())
+        elif words[:1] == ['format']:
             fmt = words[1]
         elif words[:1] == ['element']:
             if not seen_element and words[1] != 'vertex':
@@ -97,14 +97,14 @@ def read_ply_vertices(path: str | Path, *, formats: tuple[str, ...] = PLY_FORMAT
     dtype = np.dtype([(name, order + code) for name, code in props])
     if fmt == 'ascii':
         if count == 0:
-            return np.zeros(0, dtype)
+            return np.zeros(0, dtype), comments
         try:
             table = np.loadtxt(io.BytesIO(body), dtype=np.float64, max_rows=count, ndmin=2)
         except ValueError as err:
             raise PlyError(f'{path}: malformed ASCII vertex data: {err}') from err
         if table.shape != (count, len(props)):
             raise PlyError(f'{path}: truncated ({len(table)} of {count} vertices)')
-        return recfunctions.unstructured_to_structured(table, dtype)
+        return recfunctions.unstructured_to_structured(table, dtype), comments
     if len(body) < count * dtype.itemsize:
         raise PlyError(f'{path}: truncated ({len(body)} bytes for {count} vertices of {dtype.itemsize})')
-    return np.frombuffer(body, dtype, count=count)
+    return np.frombuffer(body, dtype, count=count), comments

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fruitnerfpp_ros.core.data.ply_io import PlyError, read_ply_comments, read_ply_vertices, write_ply_vertices
+from fruitnerfpp_ros.core.data.ply_io import PlyError, read_ply_vertices_and_comments, write_ply_vertices
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.errors import ExportError
 
@@ -62,7 +62,7 @@ def read_ply(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
     """
     path = Path(path)
     try:
-        v = read_ply_vertices(path, formats=('binary_little_endian',))
+        v, comments = read_ply_vertices_and_comments(path, formats=('binary_little_endian',))
     except FileNotFoundError as err:
         raise ExportError(f'{path}: point cloud file not found') from err
     except (OSError, PlyError) as err:
@@ -79,7 +79,7 @@ def read_ply(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
     embedding = (np.stack([v[n] for n in emb_names], 1).astype(np.float32) if emb_names
                  else np.zeros((n_vertices, 0), np.float32))
     labels = v['cluster'].astype(np.int32) if 'cluster' in names else None
-    return FruitPointCloud(xyz, rgb, semantic, embedding, _spacing_from_comments(read_ply_comments(path))), labels
+    return FruitPointCloud(xyz, rgb, semantic, embedding, _spacing_from_comments(comments)), labels
 
 
 def _spacing_from_comments(comments: list[str]) -> float | None:
