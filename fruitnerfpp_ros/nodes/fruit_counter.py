@@ -36,6 +36,7 @@ from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
 from fruitnerfpp_ros.core.progress import ProgressEvent
 from fruitnerfpp_ros.errors import FruitNerfError
 from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler, ThrottledLog
+from fruitnerfpp_ros.nodes.mask_source import mask_source_from_settings
 from fruitnerfpp_ros.nodes.params import declare_parameters, keyframe_config, pipeline_configs, settings_mapping
 from fruitnerfpp_ros.nodes.results import (DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, diagnostics_msg, result_messages,
                                            write_report)
@@ -65,16 +66,15 @@ class FruitCounterNode(Node):
         super().__init__(node_name, **kwargs)
         self.settings = declare_parameters(self)
         s = self.settings
+        # a segmenter loads its model first: a bad checkpoint stops the node (spin_node prints the error) before
+        # any run folder exists
+        mask_source = mask_source_from_settings(s)
         self.run_dir = Path(s.output_dir).expanduser() if s.output_dir else default_output_dir()
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / 'params.yaml').write_text(yaml.safe_dump(
             {'/**': {'ros__parameters': settings_mapping(s)}}, sort_keys=False))
         self.store = KeyframeStore(self.run_dir / 'keyframes', keyframe_config(s))
-        try:  # a segmenter mask source loads its model here: a bad checkpoint stops the node at startup
-            self.assembler = FrameAssembler(s, self.store, self._log)
-        except FruitNerfError as err:
-            self.get_logger().error(f'cannot start: {err}')
-            raise
+        self.assembler = FrameAssembler(s, self.store, self._log, mask_source=mask_source)
         self._warn_throttled = ThrottledLog(self._log, period_s=30.0)
 
         # Inputs: callbacks enqueue only.

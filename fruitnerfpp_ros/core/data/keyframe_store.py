@@ -160,9 +160,21 @@ class KeyframeStore:
             return list(self._frames)
 
     def offer(self, keyframe: Keyframe) -> KeyframeDecision:
-        """Keep ``keyframe`` if it passes the selection; write it to disk at once when kept."""
+        """Keep ``keyframe`` if it passes the selection; write it to disk at once when kept.
+
+        A segmenter (``keyframe.instance`` callable) runs only for a kept frame, and outside the store's lock, so
+        ``len``, ``frames`` and ``snapshot`` from other threads never wait for a model.
+        """
+        if callable(keyframe.instance):
+            with self._lock:
+                decision = self._decide(keyframe)
+            if decision is not KeyframeDecision.ACCEPTED:
+                with self._lock:
+                    self.rejected[decision] += 1
+                return decision
+            keyframe = keyframe._replace(instance=keyframe.instance())
         with self._lock:
-            decision = self._decide(keyframe)
+            decision = self._decide(keyframe)  # again: the store may have changed while the segmenter ran
             if decision is not KeyframeDecision.ACCEPTED:
                 self.rejected[decision] += 1
                 return decision
@@ -182,8 +194,7 @@ class KeyframeStore:
 
     def _write(self, keyframe: Keyframe) -> None:
         name = f'{len(self._frames):06d}.png'  # frames are only ever appended (reset starts a new folder)
-        instance = keyframe.instance() if callable(keyframe.instance) else keyframe.instance
-        instance = np.asarray(instance, dtype=np.uint16)
+        instance = np.asarray(keyframe.instance, dtype=np.uint16)
         write_rgb_png(self.directory / 'images' / name, keyframe.rgb)
         write_uint16_png(self.directory / 'instances' / name, instance)
         write_mask_png(self.directory / 'semantics' / name, instance > 0)
