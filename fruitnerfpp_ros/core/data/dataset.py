@@ -33,6 +33,7 @@ class SceneDataset:
         train_indices: [V_train] int64 view indices used for training.
         eval_indices: [V_eval] int64 held-out view indices.
         ply_path: the sparse point cloud named by ``ply_file_path`` when it exists, else None.
+        file_paths: the V images as transforms.json names them.
     """
 
     dataset_dir: Path
@@ -44,6 +45,7 @@ class SceneDataset:
     train_indices: torch.Tensor
     eval_indices: torch.Tensor
     ply_path: Path | None
+    file_paths: tuple[str, ...] = ()
 
     @property
     def num_views(self) -> int:
@@ -165,4 +167,5 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
         train_indices=torch.from_numpy(train.astype(np.int64)),
         eval_indices=torch.from_numpy(held.astype(np.int64)),
         ply_path=ply_path,
+        file_paths=tuple(frame.file_path for frame in transforms.frames),
     )

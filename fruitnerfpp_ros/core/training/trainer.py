@@ -7,6 +7,7 @@ CPU (on CUDA within a small tolerance: the hash-grid backward uses atomic adds).
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import threading
@@ -24,7 +25,6 @@ from fruitnerfpp_ros.core.data.bounds import scene_aabb
 from fruitnerfpp_ros.core.data.dataset import SceneDataset, load_dataset
 from fruitnerfpp_ros.core.data.rays import rays_for_pixels
 from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler
-from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
 from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent
@@ -167,24 +167,24 @@ class _Session:
         self.device = device
         self.aabb = aabb
         self.run = run
+        diagonal = float(np.linalg.norm(aabb[1] - aabb[0]))
+        self.settings = RenderSettings(step=config.render.step_size(diagonal), near=config.render.near,
+                                       mixed_precision=config.render.mixed_precision,
+                                       weight_threshold=config.instance.weight_threshold)
+        field_config = config.field
+        if field_config.density_bias is None:
+            # Start just below the occupancy threshold (as instant-NGP does at its scale): the first occupancy
+            # update then keeps only cells whose density training raised, never cells no ray constrains.
+            field_config = dataclasses.replace(field_config, density_bias=math.log(
+                0.5 * config.render.occupancy_threshold / self.settings.step))
         torch.manual_seed(config.seed)
         np.random.seed(config.seed)
-        self.field = FruitField(config.field, aabb).to(device)
+        self.field = FruitField(field_config, aabb).to(device)
         self.grid = OccupancyGrid(torch.as_tensor(aabb, dtype=torch.float32),
                                   resolution=config.render.occupancy_resolution,
                                   threshold=config.render.occupancy_threshold,
                                   decay=config.render.occupancy_decay).to(device)
         self.generator = torch.Generator().manual_seed(config.seed)
-        diagonal = float(np.linalg.norm(aabb[1] - aabb[0]))
-        self.settings = RenderSettings(step=config.render.step_size(diagonal), near=config.render.near,
-                                       mixed_precision=config.render.mixed_precision,
-                                       weight_threshold=config.instance.weight_threshold)
-        # Start just below the occupancy threshold (as instant-NGP does at its scale): the first occupancy update
-        # then keeps only cells whose density training raised, never cells no ray constrains.
-        if config.field.density_bias is None:
-            with torch.no_grad():
-                self.field.density_mlp[-1].bias[0].fill_(
-                    math.log(0.5 * config.render.occupancy_threshold / self.settings.step))
         self.geometry_fn: Callable[[torch.Tensor], GeometryOutput] = self.field.geometry
         if device.type == 'cuda' and config.render.compile and hasattr(torch, 'compile'):
             self.geometry_fn = _GuardedCompile(self.field.geometry)
@@ -471,8 +471,7 @@ def _train(dataset_dir: str | Path, run: RunDir, config: TrainConfig, state: dic
         if name == 'semantic' and session.pose_refinement is not None:  # the poses are final from here on
             with torch.no_grad():
                 write_refined_poses(run.refined_poses_path, session.poses, session.current_poses(),
-                                    [f.file_path for f in read_transforms(dataset.dataset_dir).frames],
-                                    session.pose_refinement.trained)
+                                    list(dataset.file_paths), session.pose_refinement.trained)
         session.stage += 1
         session.step = 0
         session.stage_wall = 0.0
