@@ -48,21 +48,22 @@ def split_oversized(xyz: np.ndarray, embedding: np.ndarray, labels: np.ndarray, 
         return labels, 0
     diameters = cluster_diameters(xyz, labels)
     # Fewer than three clusters give no typical fruit (one giant cluster and a stray one, say): each is a candidate.
-    limit = config.split_diameter_factor * float(np.median([d for d, _ in diameters.values()])) \
-        if len(diameters) >= 3 else 0.0
+    typical = len(diameters) >= 3
+    limit = config.split_diameter_factor * float(np.median([d for d, _ in diameters.values()])) if typical else 0.0
     leaf = dataclasses.replace(config, cluster_selection_method='leaf')
     out, next_label, n_split = labels.copy(), int(labels.max()) + 1, 0
     for diameter, members in diameters.values():
         if diameter <= limit or len(members) < 2 * config.min_fruit_points:
             continue
-        local, _ = cluster_partition(xyz[members], embedding[members], leaf, min_cluster_size=config.min_cluster_size)
+        local, _ = cluster_partition(xyz[members], embedding[members], leaf, min_cluster_size=config.min_cluster_size,
+                                     workers=config.n_jobs)
         sizes = np.bincount(local[local >= 0]) if np.any(local >= 0) else np.zeros(0, np.int64)
         parts = np.flatnonzero(sizes >= config.min_fruit_points)
         if len(parts) < 2:
             continue
-        if limit == 0.0:  # no typical fruit: the parts themselves must be much smaller (not halves of one fruit)
-            part_diameters = [fruit_diameter(p, np.median(p, axis=0))
-                              for p in (xyz[members][local == k] for k in parts)]
+        if not typical:  # the parts themselves must be much smaller (not the halves of one fruit)
+            kept = np.where(np.isin(local, parts), local, -1)
+            part_diameters = [d for d, _ in cluster_diameters(xyz[members], kept).values()]
             if diameter <= config.split_diameter_factor * float(np.median(part_diameters)):
                 continue
         new = np.full(len(members), -1, np.int64)
