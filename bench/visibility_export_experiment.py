@@ -24,12 +24,13 @@ from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.rendering.marching import march_rays
 from fruitnerfpp_ros.core.rendering.volume import render_weights
-from fruitnerfpp_ros.core.training import load_trained_scene
+from fruitnerfpp_ros.core.training import TrainedScene, load_trained_scene
 
 
-def max_training_weight(run: str, data: str, voxel: float) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def max_training_weight(scene: TrainedScene, data: str, voxel: float,
+                        ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """(largest render weight per voxel [X*Y*Z], voxels per axis [3], box corner [3]) over all training rays."""
-    scene, dataset = load_trained_scene(run, 'cpu'), load_dataset(data)
+    dataset = load_dataset(data)
     aabb = torch.as_tensor(scene.aabb, dtype=torch.float32)
     res = torch.ceil((aabb[1] - aabb[0]) / voxel).long()
     best = torch.zeros(int(res.prod()))
@@ -50,12 +51,13 @@ def main() -> None:
     torch.set_num_threads(1)
     run, data, thresholds = sys.argv[1], sys.argv[2], [float(a) for a in sys.argv[3:]]
     voxel = float(os.environ.get('VOXEL', '0.01'))
-    best, res, corner = max_training_weight(run, data, voxel)
+    scene = load_trained_scene(run, 'cpu')
+    best, res, corner = max_training_weight(scene, data, voxel)
     seen = torch.nonzero(best > 0).squeeze(1)
     print('grid', res.tolist(), 'voxels with weight', len(seen))
     ijk = torch.stack([seen // (res[1] * res[2]), (seen // res[2]) % res[1], seen % res[2]], 1)
     centres = corner + (ijk.float() + 0.5) * voxel
-    query = load_trained_scene(run, 'cpu').field.query(centres)
+    query = scene.field.query(centres)
     gt = load_ground_truth(f'{data}/gt_fruits.json')
     for threshold in thresholds:
         keep = (best[seen] >= threshold) & (query.fruit_prob >= 0.9)

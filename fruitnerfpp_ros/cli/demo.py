@@ -13,17 +13,18 @@ from pathlib import Path
 
 import numpy as np
 
+from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
+
 __all__ = ['register', 'run', 'render_instance_cloud']
 
 
-def _dot_radius(xyz: np.ndarray, scale: float) -> int:
-    """Half-width in pixels of a dot: ~0.45 x the median point spacing, 1-6 px."""
+def _median_spacing(xyz: np.ndarray) -> float:
+    """Median nearest-neighbour distance of (a sample of) the points; 0 for fewer than two."""
     from scipy.spatial import cKDTree
     if len(xyz) < 2:
-        return 1
+        return 0.0
     sample = xyz[np.random.default_rng(0).choice(len(xyz), min(len(xyz), 5000), replace=False)]
-    spacing = float(np.median(cKDTree(sample).query(sample, k=2)[0][:, 1]))
-    return int(np.clip(round(0.45 * spacing * scale), 1, 6))
+    return float(np.median(cKDTree(sample).query(sample, k=2)[0][:, 1]))
 
 
 def render_instance_cloud(xyz: np.ndarray, labels: np.ndarray, path: str | Path, size: int = 480) -> Path:
@@ -42,6 +43,7 @@ def render_instance_cloud(xyz: np.ndarray, labels: np.ndarray, path: str | Path,
     palette[0] = 110
     colours = palette[labels]
     views = []
+    spacing = _median_spacing(xyz)
     for axes in ((0, 2), (0, 1)):
         canvas = np.full((size, size, 3), 255, np.uint8)
         if len(xyz):
@@ -52,7 +54,7 @@ def render_instance_cloud(xyz: np.ndarray, labels: np.ndarray, path: str | Path,
             uv[:, 1] = size - 1 - uv[:, 1]
             order = np.argsort(labels > 0, kind='stable')  # noise first, fruit drawn over it
             uv, bgr = uv[order], colours[order][:, ::-1]
-            r = _dot_radius(xyz, scale)
+            r = int(np.clip(round(0.45 * spacing * scale), 1, 6))  # dots ~0.45 x the point spacing, 1-6 px
             for dv in range(-r, r + 1):  # square dots about as wide as the point spacing
                 for du in range(-r, r + 1):
                     canvas[np.clip(uv[:, 1] + dv, 0, size - 1), np.clip(uv[:, 0] + du, 0, size - 1)] = bgr
@@ -77,7 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--resolution', type=int, default=96, help='square image size, px')
     parser.add_argument('--trajectory', choices=('hemisphere', 'row'), default='hemisphere')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap', help='rosbag2 storage')
-    parser.add_argument('--preset', choices=('auto', 'tiny', 'cpu', 'default', 'paper'), default='auto',
+    parser.add_argument('--preset', choices=('auto', *PRESET_NAMES), default='auto',
                         help='training preset (auto = default on CUDA, tiny on CPU)')
     parser.add_argument('--device', default='auto', help='torch device: auto, cpu, cuda, cuda:N')
     parser.add_argument('--seed', type=int, default=0)

@@ -14,9 +14,10 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.config_io import (config_from_mapping, is_sectioned, load_pipeline_sections,
-                                            load_yaml_mapping, replace_nested)
+from fruitnerfpp_ros.core.config_io import (config_from_mapping, is_sectioned, load_yaml_mapping,
+                                            pipeline_sections, replace_nested)
 from fruitnerfpp_ros.core.export.config import ExportConfig
+from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['register', 'load_section']
@@ -31,7 +32,7 @@ def load_section(cls: type[T], path: Path | None, section: str) -> T:
         return cls()
     data = load_yaml_mapping(path)
     if is_sectioned(data):
-        data = load_pipeline_sections(path)[section]
+        data = pipeline_sections(data, path)[section]
     try:
         return config_from_mapping(cls, data)
     except ConfigError as err:
@@ -106,7 +107,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           'dataset has gt_fruits.json.')
     p.add_argument('data_dir', type=Path, help='transforms.json dataset directory')
     p.add_argument('--out', type=Path, required=True, help='run directory')
-    p.add_argument('--preset', default='tiny', help='training preset: tiny, cpu, default, paper (default tiny)')
+    p.add_argument('--preset', default='tiny', choices=PRESET_NAMES, help='training preset (default tiny)')
     p.add_argument('--device', default='auto', help='auto, cpu, cuda, cuda:N')
     p.add_argument('--config', type=Path, help='YAML with optional sections train / export / clustering')
     p.add_argument('--resume', action='store_true', help='continue training from RUN_DIR')

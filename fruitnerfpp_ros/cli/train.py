@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from fruitnerfpp_ros.core.config_io import load_pipeline_sections, load_yaml_mapping, replace_nested
+from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
 from fruitnerfpp_ros.errors import ConfigError
 
 if TYPE_CHECKING:  # torch is imported only by the commands that train (``fruitnerfpp --help`` stays fast)
@@ -57,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    description=__doc__)
     parser.add_argument('dataset', metavar='DATA_DIR', help='dataset directory holding transforms.json')
     parser.add_argument('--out', required=True, metavar='RUN_DIR', help='run directory (config, checkpoints, metrics)')
-    parser.add_argument('--preset', default='default',
+    parser.add_argument('--preset', default='default', choices=PRESET_NAMES,
                         help='hyper-parameter preset: tiny (CPU tests), cpu (a real tree on a CPU), default (GPU), '
                              'paper (long schedule)')
     parser.add_argument('--device', default='auto', help='auto, cpu or cuda[:N] (default: auto)')

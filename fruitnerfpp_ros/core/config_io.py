@@ -156,7 +156,12 @@ def load_pipeline_sections(path: str | Path, *, kind: str = 'config file') -> di
     Raises:
         ConfigError: unreadable YAML, an unknown section, or a section that is not a mapping (naming the file).
     """
-    data = load_yaml_mapping(path, kind=kind)
+    return pipeline_sections(load_yaml_mapping(path, kind=kind), path, kind=kind)
+
+
+def pipeline_sections(data: Mapping[str, Any], path: str | Path, *, kind: str = 'config file',
+                      ) -> dict[str, dict[str, Any]]:
+    """:func:`load_pipeline_sections` of a mapping already read from ``path`` (named in errors)."""
     unknown = sorted(set(data) - set(PIPELINE_SECTIONS))
     if unknown:
         raise ConfigError(f'{kind} {path}: unknown section(s) {", ".join(map(str, unknown))}; expected only '

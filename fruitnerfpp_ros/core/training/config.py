@@ -21,12 +21,11 @@ from dataclasses import dataclass
 from dataclasses import field as _field
 
 from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig
+from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['TrainConfig', 'DataConfig', 'RenderConfig', 'GeometryStageConfig', 'SemanticStageConfig',
            'InstanceStageConfig', 'FieldConfig', 'PRESET_NAMES']
-
-PRESET_NAMES = ('tiny', 'cpu', 'default', 'paper')
 
 
 @dataclass(frozen=True)
