@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
-from fruitnerfpp_ros.errors import ConversionError, SegmentationError
+from fruitnerfpp_ros.errors import SegmentationError
 from fruitnerfpp_ros.nodes.conversions import mask_from_msg
 
 if TYPE_CHECKING:
@@ -62,11 +62,8 @@ class SegmenterMaskSource:
         self.name = name
 
     def instances_for(self, rgb: np.ndarray, mask_msg: Any | None) -> np.ndarray:
-        ids = np.asarray(self.segmenter(rgb))
-        if ids.shape != rgb.shape[:2]:
-            raise ConversionError(f'{self.name}: instance map of shape {ids.shape} for a {rgb.shape[1]}x'
-                                  f'{rgb.shape[0]} image')
-        return ids.astype(np.uint16, copy=False)
+        from fruitnerfpp_ros.core.segmentation.segmenter import segment
+        return segment(self.segmenter, rgb, self.name)
 
 
 def segmenter_config_from_settings(settings: CounterSettings) -> SegmenterConfig:

@@ -17,7 +17,7 @@ import numpy as np
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_uint16_png
 from fruitnerfpp_ros.core.data.transforms_format import TransformsFile, read_transforms, write_transforms
 from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
-from fruitnerfpp_ros.core.segmentation.segmenter import Segmenter
+from fruitnerfpp_ros.core.segmentation.segmenter import Segmenter, segment
 from fruitnerfpp_ros.errors import DatasetError, SegmentationError
 
 __all__ = ['SegmentationSummary', 'mask_paths_for', 'check_no_masks', 'segment_dataset']
@@ -125,10 +125,7 @@ def segment_dataset(dataset_dir: str | Path, segmenter: Segmenter, *, overwrite:
     new_frames, n_instances, empty = [], 0, 0
     for index, (frame, (instance_path, semantic_path)) in enumerate(zip(frames, targets)):
         rgb = _read_rgb8(dataset_dir / frame.file_path)
-        ids = np.asarray(segmenter(rgb))
-        if ids.shape != rgb.shape[:2]:
-            raise SegmentationError(f'{frame.file_path}: the segmenter returned shape {ids.shape} for a '
-                                    f'{rgb.shape[1]}x{rgb.shape[0]} image')
+        ids = segment(segmenter, rgb, frame.file_path)
         write_uint16_png(dataset_dir / instance_path, ids)
         write_mask_png(dataset_dir / semantic_path, ids > 0)
         k = int(ids.max()) if ids.size else 0

@@ -6,9 +6,8 @@ fallback (and everything that merely imports this package) stays light.
 
 from __future__ import annotations
 
-from fruitnerfpp_ros.core.segmentation.config import SEGMENTER_METHODS, SegmenterConfig
+from fruitnerfpp_ros.core.segmentation.config import SegmenterConfig
 from fruitnerfpp_ros.core.segmentation.segmenter import Segmenter
-from fruitnerfpp_ros.errors import SegmentationError
 
 __all__ = ['build_segmenter']
 
@@ -24,12 +23,6 @@ def build_segmenter(config: SegmenterConfig = SegmenterConfig()) -> Segmenter:
     if config.method == 'fallback':
         from fruitnerfpp_ros.core.segmentation.fallback import FallbackSegmenter
         return FallbackSegmenter(config)
-    if config.method not in SEGMENTER_METHODS:  # SegmenterConfig validates; this guards hand-made objects
-        raise SegmentationError(f"unknown segmenter method {config.method!r}; expected one of "
-                                f"{', '.join(SEGMENTER_METHODS)}")
-    if not config.checkpoint:
-        raise SegmentationError(f"method {config.method!r} needs a checkpoint: the path of a local model file "
-                                '(nothing is downloaded)')
     if config.method == 'torchscript':
         from fruitnerfpp_ros.core.segmentation.torchscript import TorchScriptSegmenter
         return TorchScriptSegmenter(config)

@@ -13,14 +13,13 @@ predicted IoU; the better mask wins overlaps).
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
 
 from fruitnerfpp_ros.core.segmentation.config import SegmenterConfig
 from fruitnerfpp_ros.core.segmentation.instance_maps import instance_map_from_masks, mask_solidity
-from fruitnerfpp_ros.core.segmentation.segmenter import check_rgb
+from fruitnerfpp_ros.core.segmentation.segmenter import check_rgb, checkpoint_file, first_line
 from fruitnerfpp_ros.errors import SegmentationError
 
 __all__ = ['SamSegmenter', 'fruit_like_masks', 'instance_map_from_sam_records', 'SAM_PACKAGE']
@@ -67,12 +66,7 @@ class SamSegmenter:
 
     def __init__(self, config: SegmenterConfig) -> None:
         self.config = config
-        if not config.checkpoint:
-            raise SegmentationError("method 'sam' needs a checkpoint: the path of a local Segment Anything .pth file "
-                                    '(e.g. sam_vit_b_01ec64.pth)')
-        path = Path(config.checkpoint).expanduser()
-        if not path.is_file():
-            raise SegmentationError(f'Segment Anything checkpoint not found: {path}')
+        path = checkpoint_file('sam', config.checkpoint, 'Segment Anything')
         try:
             from segment_anything import SamAutomaticMaskGenerator, sam_model_registry
         except ImportError as err:
@@ -86,7 +80,7 @@ class SamSegmenter:
             model = sam_model_registry[config.sam_model_type](checkpoint=str(path))
         except Exception as err:  # noqa: BLE001 - torch.load / load_state_dict errors
             raise SegmentationError(f'{path}: cannot load as a SAM {config.sam_model_type} checkpoint '
-                                    f'({str(err).strip().splitlines()[0] if str(err).strip() else err!r})') from err
+                                    f'({first_line(err)})') from err
         model.to(self.device)
         self.generator = SamAutomaticMaskGenerator(model, points_per_side=config.sam_points_per_side)
         self.path = path

@@ -23,7 +23,6 @@ Export a model, e.g.::
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -32,15 +31,10 @@ import torch
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.segmentation.config import SegmenterConfig
 from fruitnerfpp_ros.core.segmentation.instance_maps import instance_map_from_masks, relabel_sequential
-from fruitnerfpp_ros.core.segmentation.segmenter import check_rgb
+from fruitnerfpp_ros.core.segmentation.segmenter import check_rgb, checkpoint_file, first_line
 from fruitnerfpp_ros.errors import SegmentationError
 
 __all__ = ['TorchScriptSegmenter', 'instance_map_from_model_output']
-
-
-def _first_line(err: BaseException) -> str:
-    text = str(err).strip().splitlines()
-    return text[0] if text else type(err).__name__
 
 
 def instance_map_from_model_output(output: Any, height: int, width: int, config: SegmenterConfig) -> np.ndarray:
@@ -95,16 +89,12 @@ class TorchScriptSegmenter:
 
     def __init__(self, config: SegmenterConfig) -> None:
         self.config = config
-        if not config.checkpoint:
-            raise SegmentationError("method 'torchscript' needs a checkpoint: the path of a local TorchScript file")
-        path = Path(config.checkpoint).expanduser()
-        if not path.is_file():
-            raise SegmentationError(f'TorchScript checkpoint not found: {path}')
+        path = checkpoint_file('torchscript', config.checkpoint, 'TorchScript')
         self.device = resolve_device(config.device)
         try:
             model = torch.jit.load(str(path), map_location=self.device)
         except Exception as err:  # noqa: BLE001 - torch raises RuntimeError, ValueError, zipfile errors...
-            raise SegmentationError(f'{path}: not a loadable TorchScript model ({_first_line(err)})') from err
+            raise SegmentationError(f'{path}: not a loadable TorchScript model ({first_line(err)})') from err
         self.model = model.eval()
         self.path = path
 
@@ -117,5 +107,5 @@ class TorchScriptSegmenter:
                 output = self.model(image)
         except Exception as err:  # noqa: BLE001 - a scripted model may raise anything
             raise SegmentationError(f'{self.path}: the model failed on a {width}x{height} image '
-                                    f'({_first_line(err)})') from err
+                                    f'({first_line(err)})') from err
         return instance_map_from_model_output(output, height, width, self.config)
