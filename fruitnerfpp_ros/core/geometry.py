@@ -25,6 +25,7 @@ __all__ = [
     'transform_from_quaternion',
     'quaternion_from_transform',
     'invert_transform',
+    'rotation_angle_deg',
     'interpolate_transform',
     'principal_point_ros_from_transforms',
     'principal_point_transforms_from_ros',
@@ -57,6 +58,12 @@ def quaternion_from_transform(T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(translation xyz, unit quaternion xyzw) of a 4x4 rigid transform."""
     T = np.asarray(T, dtype=np.float64)
     return T[:3, 3].copy(), Rotation.from_matrix(T[:3, :3]).as_quat()
+
+
+def rotation_angle_deg(R_a: np.ndarray, R_b: np.ndarray) -> np.ndarray:
+    """Angle (degrees) of the rotation between ``R_a`` and ``R_b`` ([..., 3, 3] each)."""
+    relative = np.swapaxes(np.asarray(R_a, float), -1, -2) @ np.asarray(R_b, float)
+    return np.degrees(Rotation.from_matrix(relative.reshape(-1, 3, 3)).magnitude()).reshape(relative.shape[:-2])
 
 
 def invert_transform(T: np.ndarray) -> np.ndarray:

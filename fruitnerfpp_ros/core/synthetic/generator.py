@@ -18,8 +18,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import cv2
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.config_io import config_to_mapping
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, FrameEntry, TransformsFile, write_transforms
@@ -185,7 +185,7 @@ def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> l
     for T in poses:
         noisy = T.copy()
         rotvec = np.radians(config.pose_noise_deg) * rng.normal(size=3)
-        noisy[:3, :3] = T[:3, :3] @ cv2.Rodrigues(rotvec)[0]
+        noisy[:3, :3] = T[:3, :3] @ Rotation.from_rotvec(rotvec).as_matrix()
         noisy[:3, 3] = T[:3, 3] + config.pose_noise_m * rng.normal(size=3)
         out.append(noisy)
     return out

@@ -13,10 +13,12 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import torch
 from torch import nn
 
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
+from fruitnerfpp_ros.core.geometry import rotation_angle_deg
 
 __all__ = ['PoseRefinement', 'rotation_from_axis_angle', 'write_refined_poses']
 
@@ -68,12 +70,10 @@ def write_refined_poses(path: Path, recorded: torch.Tensor, refined: torch.Tenso
         file_paths: the V images, as transforms.json names them.
         trained: [V] bool, the views that were refined (held-out views keep their recorded pose).
     """
-    recorded = recorded.detach().double().cpu()
-    refined = refined.detach().double().cpu()
-    relative = torch.linalg.inv(recorded) @ refined
-    cos = ((relative[:, 0, 0] + relative[:, 1, 1] + relative[:, 2, 2] - 1.0) / 2.0).clamp(-1.0, 1.0)
-    angles = torch.rad2deg(torch.arccos(cos))
-    shifts = (refined[:, :3, 3] - recorded[:, :3, 3]).norm(dim=-1)
+    recorded = recorded.detach().double().cpu().numpy()
+    refined = refined.detach().double().cpu().numpy()
+    angles = rotation_angle_deg(recorded[:, :3, :3], refined[:, :3, :3])
+    shifts = np.linalg.norm(refined[:, :3, 3] - recorded[:, :3, 3], axis=-1)
     views = [{'index': i, 'file_path': name, 'refined': bool(trained[i]), 'rotation_deg': round(float(a), 4),
               'translation_m': round(float(s), 5), 'transform_matrix': refined[i].tolist()}
              for i, (name, a, s) in enumerate(zip(file_paths, angles, shifts))]

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+from fruitnerfpp_ros.core.geometry import rotation_angle_deg
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
 from fruitnerfpp_ros.errors import SynthError
 
@@ -24,8 +25,7 @@ def test_noise_moves_the_recorded_poses_only(tmp_path: Path) -> None:
         assert (tmp_path / 'clean' / a.file_path).read_bytes() == (tmp_path / 'noisy' / b.file_path).read_bytes()
         Ta, Tb = np.asarray(a.T_world_camera), np.asarray(b.T_world_camera)
         shifts.append(np.linalg.norm(Tb[:3, 3] - Ta[:3, 3]))
-        cos = (np.trace(Ta[:3, :3].T @ Tb[:3, :3]) - 1.0) / 2.0
-        angles.append(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))))
+        angles.append(float(rotation_angle_deg(Ta[:3, :3], Tb[:3, :3])))
         np.testing.assert_allclose(Tb[:3, :3].T @ Tb[:3, :3], np.eye(3), atol=1e-9)  # still a rotation
     # per-axis std 2 cm / 1 deg: a 3-D error of about sqrt(3) times that on average
     assert 0.015 < np.mean(shifts) < 0.06 and 0.7 < np.mean(angles) < 3.0
