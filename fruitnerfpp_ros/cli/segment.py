@@ -14,7 +14,6 @@ imported only by the model methods (``fruitnerfpp --help`` stays fast).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 from typing import Any
 
 from fruitnerfpp_ros.core.progress import ProgressEvent
@@ -43,14 +42,10 @@ def register(subparsers: Any) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run ``segment`` from parsed arguments; returns the exit code."""
-    from fruitnerfpp_ros.core.config_io import load_config
     from fruitnerfpp_ros.core.segmentation import SegmenterConfig, build_segmenter
     from fruitnerfpp_ros.core.segmentation.dataset_masks import check_no_masks, segment_dataset
 
-    config = load_config(SegmenterConfig, args.config) if args.config else SegmenterConfig()
-    overrides = {key: value for key, value in (('method', args.method), ('checkpoint', args.checkpoint),
-                                               ('device', args.device)) if value is not None}
-    config = dataclasses.replace(config, **overrides)
+    config = SegmenterConfig.load(args.config, method=args.method, checkpoint=args.checkpoint, device=args.device)
     if not args.overwrite:
         check_no_masks(args.dataset)  # before a model is loaded
     segmenter = build_segmenter(config)

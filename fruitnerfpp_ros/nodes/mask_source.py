@@ -7,7 +7,6 @@ the image and pose) and turns what it gets into a [H, W] uint16 instance-id arra
 
 from __future__ import annotations
 
-import dataclasses
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -73,14 +72,9 @@ def segmenter_config_from_settings(settings: CounterSettings) -> SegmenterConfig
     Raises:
         ConfigError: an unreadable segmenter_config_file or a bad value in it (the message names the file).
     """
-    from fruitnerfpp_ros.core.config_io import load_config
     from fruitnerfpp_ros.core.segmentation import SegmenterConfig
-    base = load_config(SegmenterConfig, settings.segmenter_config_file) if settings.segmenter_config_file \
-        else SegmenterConfig()
-    overrides: dict[str, Any] = {'method': settings.mask_source, 'device': settings.device}
-    if settings.segmenter_checkpoint:
-        overrides['checkpoint'] = settings.segmenter_checkpoint
-    return dataclasses.replace(base, **overrides)
+    return SegmenterConfig.load(settings.segmenter_config_file, method=settings.mask_source,
+                                checkpoint=settings.segmenter_checkpoint, device=settings.device)
 
 
 def mask_source_from_settings(settings: CounterSettings) -> MaskSource:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
+from fruitnerfpp_ros.core.config_io import load_config
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['SegmenterConfig', 'SEGMENTER_METHODS']
@@ -120,6 +123,17 @@ class SegmenterConfig:
             raise ConfigError('SegmenterConfig: min_area_px must be >= 1')
         if self.sam_points_per_side < 1:
             raise ConfigError('SegmenterConfig: sam_points_per_side must be >= 1')
+
+    @classmethod
+    def load(cls, path: str | Path | None = None, **overrides: Any) -> 'SegmenterConfig':
+        """The config of the YAML ``path`` (defaults when None or empty), with the ``overrides`` that are set
+        (None and '' leave the file's value): what the ``segment`` command and the node both do.
+
+        Raises:
+            ConfigError: an unreadable file or a bad value (the message names the file).
+        """
+        base = load_config(cls, path) if path else cls()
+        return dataclasses.replace(base, **{k: v for k, v in overrides.items() if v not in (None, '')})
 
     def min_area_for(self, height: int, width: int) -> int:
         """Minimum instance area in pixels for an image of ``height`` x ``width``."""
