@@ -1,7 +1,7 @@
-"""Deterministic writers of the synthetic dataset files: PNGs, gt_fruits.json, sparse_pc.ply.
+"""Deterministic writers of the synthetic dataset's own files: gt_fruits.json and sparse_pc.ply.
 
-PNGs are written by ``core/data/png_io.py`` (fixed compression level; re-exported here), JSON with sorted keys and
-rounded floats, so the same scene gives byte-identical files.
+JSON with sorted keys and rounded floats, so the same scene gives byte-identical files (the PNGs come from
+``core/data/png_io.py``, equally deterministic).
 """
 
 from __future__ import annotations
@@ -13,11 +13,9 @@ from typing import Any, Sequence
 import numpy as np
 
 from fruitnerfpp_ros.core.data.ply_io import write_ply_vertices
-from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
 from fruitnerfpp_ros.core.synthetic.scene import GtFruit
 
-__all__ = ['write_rgb_png', 'write_uint16_png', 'write_mask_png', 'write_gt_fruits', 'write_sparse_ply',
-           'GT_NAME', 'SPARSE_PLY_NAME']
+__all__ = ['write_gt_fruits', 'write_sparse_ply', 'GT_NAME', 'SPARSE_PLY_NAME']
 
 GT_NAME = 'gt_fruits.json'
 SPARSE_PLY_NAME = 'sparse_pc.ply'

@@ -29,9 +29,8 @@ from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignor
 from fruitnerfpp_ros.core.synthetic.bag_writer import BAG_START_NS, FRAME_PERIOD_NS, BagWriter
 from fruitnerfpp_ros.core.synthetic.cameras import make_intrinsics, make_poses
 from fruitnerfpp_ros.core.synthetic.config import SynthConfig
-from fruitnerfpp_ros.core.synthetic.dataset_writer import (GT_NAME, SPARSE_PLY_NAME, write_gt_fruits,
-                                                           write_mask_png, write_rgb_png, write_sparse_ply,
-                                                           write_uint16_png)
+from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
+from fruitnerfpp_ros.core.synthetic.dataset_writer import GT_NAME, SPARSE_PLY_NAME, write_gt_fruits, write_sparse_ply
 from fruitnerfpp_ros.core.synthetic.preview import preview_view_indices, write_preview
 from fruitnerfpp_ros.core.synthetic.rasterizer import Renderer
 from fruitnerfpp_ros.core.synthetic.scene import build_scene, fruit_type_counts

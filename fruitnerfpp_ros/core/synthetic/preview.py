@@ -8,7 +8,7 @@ from typing import Sequence
 import cv2
 import numpy as np
 
-from fruitnerfpp_ros.core.synthetic.dataset_writer import write_rgb_png
+from fruitnerfpp_ros.core.data.png_io import write_rgb_png
 
 __all__ = ['colorize_instances', 'contact_sheet', 'write_preview', 'preview_view_indices']
 
