@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -39,3 +41,17 @@ def test_yaml_typos_are_named(tmp_path: Path) -> None:
 def test_factory_builds_the_fallback_without_torch() -> None:
     assert isinstance(build_segmenter(SegmenterConfig()), FallbackSegmenter)
     assert SegmenterConfig().min_area_for(96, 96) == 6 and SegmenterConfig().min_area_for(1000, 1000) == 200
+    # in a fresh interpreter (this one has torch loaded by other tests): the fallback path never imports it
+    code = ('import sys, numpy as np; from fruitnerfpp_ros.core.segmentation import SegmenterConfig, build_segmenter; '
+            'build_segmenter(SegmenterConfig())(np.zeros((8, 8, 3), np.uint8)); print("torch" in sys.modules)')
+    assert subprocess.run([sys.executable, '-c', code], capture_output=True, text=True, check=True).stdout.strip() \
+        == 'False'
+
+
+def test_load_merges_the_file_with_the_overrides_that_are_set(tmp_path: Path) -> None:
+    path = tmp_path / 'seg.yaml'
+    path.write_text('method: fallback\nmin_saturation: 0.5\n')
+    config = SegmenterConfig.load(path, method='torchscript', checkpoint='', device=None)
+    assert (config.method, config.min_saturation) == ('torchscript', 0.5)
+    assert config.checkpoint == SegmenterConfig().checkpoint and config.device == SegmenterConfig().device
+    assert SegmenterConfig.load(None, method='sam') == SegmenterConfig(method='sam')
