@@ -18,7 +18,10 @@ from torch import nn
 from fruitnerfpp_ros.core.fields.hash_grid import HashGridEncoding
 from fruitnerfpp_ros.core.fields.mlp import make_mlp, spherical_harmonics, trunc_exp
 
-__all__ = ['OuterField', 'OuterOutput', 'contract_to_unit']
+__all__ = ['OuterField', 'OuterOutput', 'contract_to_unit', 'INITIAL_LOG_DENSITY']
+
+#: Initial log density (1/m) of the outer field: exp(-6) ~ 0.0025/m, nearly transparent over tens of metres.
+INITIAL_LOG_DENSITY = -6.0
 
 
 def contract_to_unit(xyz: torch.Tensor, aabb: torch.Tensor) -> torch.Tensor:
@@ -49,11 +52,10 @@ class OuterField(nn.Module):
         num_levels, log2_table_size, base_resolution, max_resolution: the hash grid over the contracted cube.
         hidden_dim: width of the two small MLPs.
         sh_degree: view-direction encoding of the colour.
-        initial_log_density: initial bias of the log density (1/m).
     """
 
     def __init__(self, aabb: torch.Tensor, *, num_levels: int, log2_table_size: int, base_resolution: int,
-                 max_resolution: int, hidden_dim: int, sh_degree: int, initial_log_density: float = -6.0) -> None:
+                 max_resolution: int, hidden_dim: int, sh_degree: int) -> None:
         super().__init__()
         self.register_buffer('aabb', torch.as_tensor(aabb, dtype=torch.float32).clone())
         self.sh_degree = sh_degree
@@ -63,7 +65,7 @@ class OuterField(nn.Module):
         self.density_mlp = make_mlp(self.encoding.output_dim, hidden_dim, 1, 1 + 7)
         self.color_mlp = make_mlp(7 + sh_degree ** 2, hidden_dim, 1, 3)
         with torch.no_grad():  # start nearly transparent: the box, not the outer field, explains the scene first
-            self.density_mlp[-1].bias[0].fill_(initial_log_density)
+            self.density_mlp[-1].bias[0].fill_(INITIAL_LOG_DENSITY)
 
     def forward(self, xyz: torch.Tensor, directions: torch.Tensor) -> OuterOutput:
         """Density and colour at world points ``xyz`` [N, 3] seen along unit ``directions`` [N, 3]."""
