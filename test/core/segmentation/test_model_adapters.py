@@ -84,11 +84,15 @@ def test_torchscript_dict_output_and_thresholds(tmp_path: Path) -> None:
     assert build_segmenter(strict)(_image()).max() == 0     # score 0.7 < 0.8
 
 
+@pytest.mark.parametrize('method, kind', [('torchscript', 'TorchScript'), ('sam', 'Segment Anything')])
+def test_learned_methods_name_a_missing_checkpoint(tmp_path: Path, method: str, kind: str) -> None:
+    with pytest.raises(SegmentationError, match=f"'{method}' needs a checkpoint: the path of a local {kind} file"):
+        build_segmenter(SegmenterConfig(method=method))
+    with pytest.raises(SegmentationError, match=f'{kind} checkpoint not found: .*missing.pt'):
+        build_segmenter(SegmenterConfig(method=method, checkpoint=str(tmp_path / 'missing.pt')))
+
+
 def test_torchscript_errors(tmp_path: Path) -> None:
-    with pytest.raises(SegmentationError, match="'torchscript' needs a checkpoint"):
-        build_segmenter(SegmenterConfig(method='torchscript'))
-    with pytest.raises(SegmentationError, match='TorchScript checkpoint not found: .*missing.pt'):
-        build_segmenter(SegmenterConfig(method='torchscript', checkpoint=str(tmp_path / 'missing.pt')))
     junk = tmp_path / 'junk.pt'
     junk.write_bytes(b'not a model')
     with pytest.raises(SegmentationError, match='junk.pt: not a loadable TorchScript model'):
@@ -99,11 +103,7 @@ def test_torchscript_errors(tmp_path: Path) -> None:
         segmenter(_image())
 
 
-def test_sam_errors_name_the_checkpoint_and_the_package(tmp_path: Path) -> None:
-    with pytest.raises(SegmentationError, match="'sam' needs a checkpoint"):
-        build_segmenter(SegmenterConfig(method='sam'))
-    with pytest.raises(SegmentationError, match='Segment Anything checkpoint not found: .*sam_vit_b.pth'):
-        build_segmenter(SegmenterConfig(method='sam', checkpoint=str(tmp_path / 'sam_vit_b.pth')))
+def test_sam_errors_name_the_package(tmp_path: Path) -> None:
     checkpoint = tmp_path / 'sam_vit_b.pth'
     checkpoint.write_bytes(b'weights')
     if importlib.util.find_spec('segment_anything') is None:
