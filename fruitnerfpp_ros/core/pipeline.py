@@ -27,7 +27,7 @@ from fruitnerfpp_ros.core.export.exporter import ExportReport, ExportResult, exp
 from fruitnerfpp_ros.core.export.npz_io import read_cloud, write_npz
 from fruitnerfpp_ros.core.export.ply import write_ply
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
-from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.progress import PipelineStage, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ExportError
 
 __all__ = ['PipelineResult', 'PipelineOutputs', 'run_pipeline', 'export_run', 'count_run', 'count_cloud',
@@ -127,19 +127,19 @@ def write_counts(path: str | Path, count: CountResult, config: ClusterConfig | N
     return _write_json(Path(path), counts_to_json(count, config, source=source))
 
 
-def _tqdm_progress(*, skip_prefix: str = 'train:') -> Callable[[ProgressEvent], None]:
-    """tqdm bars driven by progress events; phases starting with ``skip_prefix`` are left out (the trainer draws
-    its own per-step bars)."""
+def _tqdm_progress(*, skip: PipelineStage = PipelineStage.TRAIN) -> Callable[[ProgressEvent], None]:
+    """tqdm bars driven by progress events; phases of the stage ``skip`` are left out (the trainer draws its own
+    per-step bars)."""
     from tqdm import tqdm
 
     bars: dict[str, Any] = {}
 
     def show(event: ProgressEvent) -> None:
-        if event.phase.startswith(skip_prefix):
+        if event.phase.stage is skip:
             return
         bar = bars.get(event.phase)
         if bar is None:
-            bar = bars[event.phase] = tqdm(total=event.total or None, desc=event.phase, leave=False)
+            bar = bars[event.phase] = tqdm(total=event.total or None, desc=str(event.phase), leave=False)
         bar.n = event.step
         bar.set_postfix_str(event.message, refresh=False)
         bar.refresh()

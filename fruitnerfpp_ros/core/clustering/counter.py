@@ -25,7 +25,7 @@ from fruitnerfpp_ros.core.clustering.merge import keep_owned_clusters, merge_clo
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
 from fruitnerfpp_ros.core.clustering.split import split_oversized
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
-from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ClusteringError
 
 __all__ = ['count_fruits', 'fruits_from_labels', 'shutdown_workers']
@@ -159,7 +159,7 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
             futures = [pool.submit(cluster_job, p, e, config, min_cluster_size) for p, e in jobs]
             for i, future in enumerate(futures):
                 results.append(future.result())
-                progress(ProgressEvent('cluster', i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
+                progress(ProgressEvent(Phase.CLUSTER, i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
         except (BrokenProcessPool, RuntimeError, OSError) as err:
             # e.g. a script without an ``if __name__ == '__main__'`` guard cannot spawn workers
             shutdown_workers()
@@ -169,7 +169,7 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         for i, (p, e) in enumerate(jobs):
             results.append(cluster_partition(p, e, config, min_cluster_size=min_cluster_size,
                                              workers=config.n_jobs))
-            progress(ProgressEvent('cluster', i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
+            progress(ProgressEvent(Phase.CLUSTER, i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
     t_hdb = time.perf_counter()
 
     clusters = []

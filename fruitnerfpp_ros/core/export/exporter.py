@@ -23,7 +23,7 @@ from scipy.ndimage import binary_dilation
 from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.fields.query import QueryableField
-from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ExportError
 
 __all__ = ['ExportReport', 'ExportResult', 'export_fruit_cloud', 'export_grid']
@@ -246,7 +246,7 @@ def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportCo
         marked[:len(done)] = done
         marked = binary_dilation(marked.reshape(coarse_shape), np.ones((3, 3, 3), bool))
         cells = np.argwhere(marked)
-        progress(ProgressEvent('export:coarse', 1, 1, f'{len(cells)}/{n_coarse} cells to refine'))
+        progress(ProgressEvent(Phase.EXPORT_COARSE, 1, 1, f'{len(cells)}/{n_coarse} cells to refine'))
 
     n_grid = int(np.prod(shape))
     n_todo = n_grid if cells is None else len(cells) * factor ** 3
@@ -293,8 +293,8 @@ def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportCo
             kept.append((xyz[both].cpu().numpy(), rgb.cpu().numpy(), fruit_prob[both].cpu().numpy(),
                          emb.cpu().numpy()))
         if (b + 1) % max(1, n_batches // 20) == 0:
-            progress(ProgressEvent('export', b + 1, n_batches, f'{n_kept} fruit points'))
-    progress(ProgressEvent('export', n_batches, n_batches, f'{n_kept} fruit points'))
+            progress(ProgressEvent(Phase.EXPORT, b + 1, n_batches, f'{n_kept} fruit points'))
+    progress(ProgressEvent(Phase.EXPORT, n_batches, n_batches, f'{n_kept} fruit points'))
     if kept:
         cloud = FruitPointCloud(*(np.ascontiguousarray(np.concatenate(parts)) for parts in zip(*kept)),
                                 spacing_m=voxel)

@@ -16,7 +16,7 @@ import numpy as np
 
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_uint16_png
 from fruitnerfpp_ros.core.data.transforms_format import TransformsFile, read_transforms, write_transforms
-from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.core.segmentation.segmenter import Segmenter, segment
 from fruitnerfpp_ros.errors import DatasetError, SegmentationError
 
@@ -132,7 +132,7 @@ def segment_dataset(dataset_dir: str | Path, segmenter: Segmenter, *, overwrite:
         n_instances += k
         empty += int(k == 0)
         new_frames.append(replace(frame, instance_path=instance_path, semantic_path=semantic_path))
-        progress(ProgressEvent('segment', index + 1, len(frames), f'{k} fruits'))
+        progress(ProgressEvent(Phase.SEGMENT, index + 1, len(frames), f'{k} fruits'))
     transforms.frames = new_frames
     write_transforms(dataset_dir, transforms)
     return SegmentationSummary(dataset_dir, len(frames), n_instances, empty, time.perf_counter() - start)

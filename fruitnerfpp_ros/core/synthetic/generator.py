@@ -25,7 +25,7 @@ from fruitnerfpp_ros.core.config_io import config_to_mapping
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, FrameEntry, TransformsFile, write_transforms
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.geometry import T_OPENGL_OPTICAL
-from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.core.synthetic.bag_writer import BAG_START_NS, FRAME_PERIOD_NS, BagWriter
 from fruitnerfpp_ros.core.synthetic.cameras import make_intrinsics, make_poses
 from fruitnerfpp_ros.core.synthetic.config import SynthConfig
@@ -95,7 +95,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
         bag: rosbag2 directory to write (must not exist, or be a previous bag), or None.
         bag_storage: ``mcap`` or ``sqlite3``.
         preview: contact sheet PNG path (RGB | instance | semantic of a few views), or None.
-        progress: called with ``ProgressEvent('synth:render', view, views)`` after each view.
+        progress: called with ``ProgressEvent(Phase.SYNTH_RENDER, view, views)`` after each view.
 
     Raises:
         SynthError: unwritable output, bad bag path or storage.
@@ -124,7 +124,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     pc_points, pc_colors = [], []
     frames = []
     bag_ctx = BagWriter(bag, bag_storage) if bag is not None else contextlib.nullcontext()
-    progress(ProgressEvent('synth:render', 0, config.views, f'{n_fruits} fruits'))
+    progress(ProgressEvent(Phase.SYNTH_RENDER, 0, config.views, f'{n_fruits} fruits'))
     with bag_ctx as bag_writer:
         for i, T in enumerate(poses):
             view = renderer.render(T, K)
@@ -146,7 +146,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
                 preview_rgb.append(view.rgb)
                 preview_inst.append(view.instance)
                 preview_labels.append(f'view {i}')
-            progress(ProgressEvent('synth:render', i + 1, config.views))
+            progress(ProgressEvent(Phase.SYNTH_RENDER, i + 1, config.views))
 
     ply_name = None
     if per_view:

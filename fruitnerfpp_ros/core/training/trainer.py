@@ -27,7 +27,7 @@ from fruitnerfpp_ros.core.data.rays import rays_for_pixels
 from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
-from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent
+from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
 from fruitnerfpp_ros.core.rendering.renderer import RenderSettings, render_rays
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_checkpoint
@@ -447,14 +447,14 @@ def _train(dataset_dir: str | Path, run: RunDir, config: TrainConfig, state: dic
                                     'wall_s': round(session.stage_wall, 3),
                                     'occupied_fraction': session.grid.occupied_fraction, **record})
                 message = ' '.join(f'{k} {v:.4g}' for k, v in record.items() if k in ('loss', 'psnr'))
-                emit(ProgressEvent(f'train:{name}', session.step, cfg.iterations, message))
+                emit(ProgressEvent(Phase.training(name), session.step, cfg.iterations, message))
             if session.step % config.checkpoint_every == 0 and session.step < cfg.iterations:
                 session.save()
         if bar is not None:
             bar.close()
         if stopped:
             session.save()
-            emit(ProgressEvent(f'train:{name}', session.step, cfg.iterations, 'stopped'))
+            emit(ProgressEvent(Phase.training(name), session.step, cfg.iterations, 'stopped'))
             break
         session.field.eval()
         metrics = evaluate_views(session.field, session.grid, dataset, eval_views, session.settings,
@@ -464,7 +464,7 @@ def _train(dataset_dir: str | Path, run: RunDir, config: TrainConfig, state: dic
                             'global_step': session.global_step, 'wall_s': round(session.stage_wall, 3),
                             'eval_psnr': metrics.psnr, 'eval_semantic_iou': metrics.semantic_iou,
                             'eval_instance_acc': metrics.instance_acc, 'eval_views': metrics.num_views})
-        emit(ProgressEvent(f'train:{name}', cfg.iterations, cfg.iterations,
+        emit(ProgressEvent(Phase.training(name), cfg.iterations, cfg.iterations,
                            f'eval psnr {metrics.psnr:.2f} iou {metrics.semantic_iou:.3f} '
                            f'inst {metrics.instance_acc:.3f}'))
         session.summaries.append(summary)
