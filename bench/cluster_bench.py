@@ -19,22 +19,24 @@ import dataclasses
 import os
 import platform
 import time
+from concurrent.futures import Executor
 from pathlib import Path
 
 from sklearn.metrics import adjusted_rand_score
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.clustering.counter import count_fruits, shutdown_workers
+from fruitnerfpp_ros.core.clustering.counter import count_fruits
 from fruitnerfpp_ros.core.clustering.hdbscan_cluster import warm_up
 from fruitnerfpp_ros.core.clustering.synthetic_cloud import make_fruit_cloud
+from fruitnerfpp_ros.core.clustering.workers import partition_pool
 
 POINTS_PER_FRUIT = 600
 
 
-def _row(n: int, touching: bool, config: ClusterConfig, label: str, seed: int = 0) -> dict:
+def _row(n: int, touching: bool, config: ClusterConfig, label: str, pool: Executor | None, seed: int = 0) -> dict:
     synth = make_fruit_cloud(n, max(3, n // POINTS_PER_FRUIT), touching=touching, dim=32, seed=seed)
     start = time.perf_counter()
-    result = count_fruits(synth.cloud, config)
+    result = count_fruits(synth.cloud, config, executor=pool)
     seconds = time.perf_counter() - start
     return {'points': len(synth.cloud), 'scene': 'touching' if touching else 'separated', 'route': label,
             'fruits': int(synth.labels.max() + 1), 'count': result.count, 'seconds': seconds,
@@ -42,13 +44,13 @@ def _row(n: int, touching: bool, config: ClusterConfig, label: str, seed: int = 
 
 
 def _table(rows: list[dict]) -> str:
-    lines = ['| points | scene | route | GT fruits | counted | time (s) | ARI | partitions | clustered | jobs |',
+    lines = ['| points | scene | route | GT fruits | counted | time (s) | ARI | partitions | clustered | in pool |',
              '|---:|---|---|---:|---:|---:|---:|---:|---:|---:|']
     for r in rows:
         s = r['stats']
         lines.append(f"| {r['points']:,} | {r['scene']} | {r['route']} | {r['fruits']} | {r['count']} | "
                      f"{r['seconds']:.2f} | {r['ari']:.4f} | {s['partitions']} | {s['n_clustered']:,} | "
-                     f"{s['parallel_jobs']} |")
+                     f"{'yes' if s['partitions_in_executor'] else 'no'} |")
     return '\n'.join(lines)
 
 
@@ -60,32 +62,32 @@ def main() -> None:
     parser.add_argument('--out', type=Path, default=Path(__file__).parent / 'results' / 'cluster_bench.md')
     args = parser.parse_args()
 
-    t0 = time.perf_counter()
-    jit_s = warm_up()
-    t1 = time.perf_counter()
-    # start the worker pool (spawn + JIT load in each worker) on a small cloud: a one-time cost as well
-    count_fruits(make_fruit_cloud(4000, 8, seed=99).cloud, ClusterConfig(partitions=2, parallel_min_points=0))
-    pool_s = time.perf_counter() - t1
-    print(f'one-time: fast_hdbscan JIT warm-up {jit_s:.1f} s (process import+JIT {t1 - t0:.1f} s), '
-          f'worker pool start {pool_s:.1f} s', flush=True)
-
     config = ClusterConfig()
     rows = []
-    for n in args.sizes:
-        for touching in (False, True):
-            rows.append(_row(n, touching, config, f'subsample {config.subsample_size // 1000}k + assign'))
-            print(_table(rows[-1:]).splitlines()[-1], flush=True)
-            if args.full and n > config.subsample_size:
-                full = dataclasses.replace(config, subsample_size=0)
-                rows.append(_row(n, touching, full, 'all points'))
-                print(_table(rows[-1:]).splitlines()[-1], flush=True)
     sweep_rows = []
-    if args.sweep:
-        for lam in (0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0):
-            r = _row(50_000, True, dataclasses.replace(config, lambda_e=lam), f'lambda_e {lam:g}/m')
-            sweep_rows.append(r)
-            print(_table([r]).splitlines()[-1], flush=True)
-    shutdown_workers()
+    with partition_pool(config.n_jobs) as pool:
+        t0 = time.perf_counter()
+        jit_s = warm_up()
+        t1 = time.perf_counter()
+        # start the worker pool (spawn + JIT load in each worker) on a small cloud: a one-time cost as well
+        count_fruits(make_fruit_cloud(4000, 8, seed=99).cloud, ClusterConfig(partitions=2, parallel_min_points=0),
+                     executor=pool)
+        pool_s = time.perf_counter() - t1
+        print(f'one-time: fast_hdbscan JIT warm-up {jit_s:.1f} s (process import+JIT {t1 - t0:.1f} s), '
+              f'worker pool start {pool_s:.1f} s', flush=True)
+        for n in args.sizes:
+            for touching in (False, True):
+                rows.append(_row(n, touching, config, f'subsample {config.subsample_size // 1000}k + assign', pool))
+                print(_table(rows[-1:]).splitlines()[-1], flush=True)
+                if args.full and n > config.subsample_size:
+                    full = dataclasses.replace(config, subsample_size=0)
+                    rows.append(_row(n, touching, full, 'all points', pool))
+                    print(_table(rows[-1:]).splitlines()[-1], flush=True)
+        if args.sweep:
+            for lam in (0.5, 1.0, 2.0, 3.0, 5.0, 10.0, 20.0):
+                r = _row(50_000, True, dataclasses.replace(config, lambda_e=lam), f'lambda_e {lam:g}/m', pool)
+                sweep_rows.append(r)
+                print(_table([r]).splitlines()[-1], flush=True)
 
     header = (f'# Clustering benchmark\n\n`python bench/cluster_bench.py{" --full" if args.full else ""}'
               f'{" --sweep" if args.sweep else ""}` on {platform.machine()} with {os.cpu_count()} CPU cores '

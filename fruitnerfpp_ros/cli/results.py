@@ -128,9 +128,12 @@ def _run_export(args: argparse.Namespace) -> int:
 
 
 def _run_count(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.core.clustering.workers import partition_pool
     from fruitnerfpp_ros.core.pipeline import count_run
 
-    count, cloud, counts_path = count_run(args.source, _cluster_config(args, args.config), out=args.out)
+    config = _cluster_config(args, args.config)
+    with partition_pool(config.n_jobs) as pool:
+        count, cloud, counts_path = count_run(args.source, config, out=args.out, executor=pool)
     print(f'fruits: {count.count} (from {len(cloud)} points, {int((count.labels == 0).sum())} noise) -> '
           f'{counts_path}')
     return 0
@@ -147,13 +150,16 @@ def _run_eval(args: argparse.Namespace) -> int:
 
 def _run_pipeline(args: argparse.Namespace) -> int:
     from fruitnerfpp_ros.cli.train import resolve_train_config
+    from fruitnerfpp_ros.core.clustering.workers import partition_pool
     from fruitnerfpp_ros.core.pipeline import run_pipeline
 
     train_config = resolve_train_config(args.preset, args.config, section='train')
-    result = run_pipeline(args.data_dir, args.out, train_config=train_config,
-                          export_config=_export_config(args, args.config),
-                          cluster_config=_cluster_config(args, args.config), device=args.device,
-                          show_progress=True, resume=args.resume, skip_training=args.skip_training)
+    cluster_config = _cluster_config(args, args.config)
+    with partition_pool(cluster_config.n_jobs) as pool:
+        result = run_pipeline(args.data_dir, args.out, train_config=train_config,
+                              export_config=_export_config(args, args.config), cluster_config=cluster_config,
+                              device=args.device, show_progress=True, resume=args.resume,
+                              skip_training=args.skip_training, executor=pool)
     if result.stopped:
         print(f'stopped early; resume with: fruitnerfpp run {args.data_dir} --out {args.out} --resume')
         return 1

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import threading
+from concurrent.futures import Executor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -187,11 +188,13 @@ def _cloud_source(source: Path) -> Path:
 
 
 def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *, out: str | Path | None = None,
+              executor: Executor | None = None,
               progress: ProgressCallback | None = None) -> tuple[CountResult, FruitPointCloud, Path]:
     """Count the fruits of a run directory's cloud (``cloud.npz`` / ``cloud.ply``) or of a cloud file.
 
     Writes ``counts.json`` (to ``out``, default next to the cloud) and rewrites the cloud's ``.ply`` and ``.npz``
-    with the cluster ids, so cloud and counts carry the same ids.
+    with the cluster ids, so cloud and counts carry the same ids. ``executor``: where the clustering partitions
+    run (see :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process).
 
     Returns:
         (the count, the cloud, the counts.json path).
@@ -202,15 +205,21 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
     cloud_path = _cloud_source(Path(source))
     cloud, _ = read_cloud(cloud_path)
     counts_path = Path(out) if out is not None else cloud_path.with_name(COUNTS_JSON)
-    count = count_cloud(cloud, cluster_config, cloud_path=cloud_path, counts_path=counts_path, progress=progress)
+    count = count_cloud(cloud, cluster_config, cloud_path=cloud_path, counts_path=counts_path, executor=executor,
+                        progress=progress)
     return count, cloud, counts_path
 
 
 def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *, cloud_path: Path,
-                counts_path: Path, progress: ProgressCallback | None = None) -> CountResult:
-    """Count ``cloud``, write ``counts_path`` and the cloud with its cluster ids as ``cloud_path`` .ply + .npz."""
+                counts_path: Path, executor: Executor | None = None,
+                progress: ProgressCallback | None = None) -> CountResult:
+    """Count ``cloud``, write ``counts_path`` and the cloud with its cluster ids as ``cloud_path`` .ply + .npz.
+
+    ``executor``: where the clustering partitions run (see
+    :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process).
+    """
     config = cluster_config or ClusterConfig()
-    count = count_fruits(cloud, config, progress=progress)
+    count = count_fruits(cloud, config, executor=executor, progress=progress)
     write_counts(counts_path, count, config, source=str(cloud_path))
     write_ply(cloud_path.with_suffix('.ply'), cloud, count.labels)
     write_npz(cloud_path.with_suffix('.npz'), cloud, count.labels)
@@ -240,7 +249,8 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
                  export_config: ExportConfig | None = None, cluster_config: ClusterConfig | None = None,
                  device: str = 'auto', progress: ProgressCallback | None = None,
                  stop_event: threading.Event | None = None, show_progress: bool = False,
-                 resume: bool = False, skip_training: bool = False) -> PipelineResult:
+                 resume: bool = False, skip_training: bool = False,
+                 executor: Executor | None = None) -> PipelineResult:
     """Train on ``dataset_dir``, export the fruit cloud, count the fruits and evaluate when GT exists.
 
     Args:
@@ -255,6 +265,9 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
         show_progress: tqdm bars (CLI).
         resume: continue training from the run's last checkpoint.
         skip_training: reuse an already trained ``run_dir`` (no training call).
+        executor: where the clustering partitions run (e.g. a
+            :func:`~fruitnerfpp_ros.core.clustering.workers.partition_pool`, owned by the caller); None: in this
+            process.
 
     Returns:
         The :class:`PipelineResult` (cloud, count, labels, metrics, output paths).
@@ -276,7 +289,7 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
                           write_cloud=False)
     cloud, counts_path = exported.cloud, run_dir / COUNTS_JSON
     count = count_cloud(cloud, cluster_config, cloud_path=run_dir / CLOUD_PLY, counts_path=counts_path,
-                        progress=progress)
+                        executor=executor, progress=progress)
     metrics = None
     eval_path = None
     gt_path = dataset_dir / GT_JSON

@@ -227,14 +227,16 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
     if n_keyframes < settings.min_keyframes:
         raise BagError(f'{bag_path}: only {n_keyframes} keyframe(s), fewer than min_keyframes='
                        f'{settings.min_keyframes}')
+    from fruitnerfpp_ros.core.clustering.workers import partition_pool
     from fruitnerfpp_ros.core.pipeline import run_pipeline
     configs = pipeline_configs(settings)
     for warning in configs.warnings:
         log('warn', warning)
-    result = run_pipeline(keyframes_dir, run_dir, train_config=configs.train,
-                          export_config=configs.export, cluster_config=configs.cluster,
-                          device=settings.device, progress=progress, stop_event=stop_event,
-                          show_progress=show_progress, skip_training=skip_training)
+    with partition_pool(configs.cluster.n_jobs) as pool:  # the replay owns the clustering workers
+        result = run_pipeline(keyframes_dir, run_dir, train_config=configs.train,
+                              export_config=configs.export, cluster_config=configs.cluster,
+                              device=settings.device, progress=progress, stop_event=stop_event,
+                              show_progress=show_progress, skip_training=skip_training, executor=pool)
     if result.stopped:
         raise BagError(f'{bag_path}: replay stopped before the count; the keyframes stay in {keyframes_dir}')
     stamp_ns = max(f.stamp_ns or 0 for f in assembler.store.frames)

@@ -228,15 +228,18 @@ class FruitCounterNode(Node):
 
     def _train_worker(self, index: int, stop_event: threading.Event) -> None:
         try:
+            from fruitnerfpp_ros.core.clustering.workers import partition_pool
             from fruitnerfpp_ros.core.pipeline import run_pipeline
             configs = pipeline_configs(self.settings)
             for warning in configs.warnings:
                 self.get_logger().warning(warning)
             snapshot = self.store.snapshot(self.run_dir / 'datasets' / f'train_{index:03d}')
             stamp_ns, n_keyframes = snapshot.latest_stamp_ns, snapshot.n_keyframes  # what this run trains on
-            result = run_pipeline(snapshot.dataset_dir, self.run_dir / f'train_{index:03d}', train_config=configs.train,
-                                  export_config=configs.export, cluster_config=configs.cluster,
-                                  device=self.settings.device, progress=self._on_progress, stop_event=stop_event)
+            with partition_pool(configs.cluster.n_jobs) as pool:  # workers live for this run only
+                result = run_pipeline(snapshot.dataset_dir, self.run_dir / f'train_{index:03d}',
+                                      train_config=configs.train, export_config=configs.export,
+                                      cluster_config=configs.cluster, device=self.settings.device,
+                                      progress=self._on_progress, stop_event=stop_event, executor=pool)
             if stop_event.is_set():
                 with self._state_lock:
                     self.state, self.phase = 'collecting', ''

@@ -7,12 +7,9 @@ ids appear in the labels, ``counts.json`` and the ROS outputs.
 from __future__ import annotations
 
 import math
-import multiprocessing
-import sys
 import time
-from concurrent.futures import Executor, ProcessPoolExecutor
+from concurrent.futures import Executor, Future
 from concurrent.futures.process import BrokenProcessPool
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -20,7 +17,7 @@ import numpy as np
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit, fruit_diameter, label_groups
 from fruitnerfpp_ros.core.clustering.graph import nearest_labels
-from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_job, cluster_partition, worker_init
+from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_job, cluster_partition
 from fruitnerfpp_ros.core.clustering.merge import keep_owned_clusters, merge_close_centers, merge_clusters
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
 from fruitnerfpp_ros.core.clustering.split import split_oversized
@@ -28,41 +25,7 @@ from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ClusteringError
 
-__all__ = ['count_fruits', 'fruits_from_labels', 'shutdown_workers']
-
-_POOL: ProcessPoolExecutor | None = None
-_POOL_JOBS = 0
-
-
-def _main_module_is_spawn_safe() -> bool:
-    """False for a ``python script.py`` without an ``if __name__ == '__main__'`` guard: spawned workers re-run
-    the main script on import, so such a script would run itself again in every worker."""
-    path = getattr(sys.modules.get('__main__'), '__file__', None)
-    if not path or not str(path).endswith('.py'):
-        return True
-    try:
-        return '__main__' in Path(path).read_text(errors='replace')
-    except OSError:
-        return True
-
-
-def _pool(n_jobs: int) -> Executor:
-    """A process pool kept for the life of the process (workers warm their JIT once)."""
-    global _POOL, _POOL_JOBS
-    if _POOL is None or _POOL_JOBS != n_jobs:
-        shutdown_workers()
-        _POOL = ProcessPoolExecutor(max_workers=n_jobs, mp_context=multiprocessing.get_context('spawn'),
-                                    initializer=worker_init)
-        _POOL_JOBS = n_jobs
-    return _POOL
-
-
-def shutdown_workers() -> None:
-    """Stop the partition worker processes (they restart on the next parallel count)."""
-    global _POOL
-    if _POOL is not None:
-        _POOL.shutdown(wait=False, cancel_futures=True)
-        _POOL = None
+__all__ = ['count_fruits', 'fruits_from_labels']
 
 
 def _validate(cloud: FruitPointCloud) -> None:
@@ -102,7 +65,41 @@ def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
     return out, fruits
 
 
-def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
+def _cluster_partitions(jobs: list[tuple[np.ndarray, np.ndarray]], config: ClusterConfig, min_cluster_size: int,
+                        executor: Executor | None, progress: ProgressCallback,
+                        stats: dict[str, Any]) -> tuple[list[tuple[np.ndarray, float]], bool]:
+    """HDBSCAN on every partition: submitted to ``executor`` when given, else in this process.
+
+    An executor that fails (a broken pool, a refused submit) is noted in ``stats['parallel_error']`` and the
+    partitions run in this process instead; the executor is the caller's and is left as it is.
+
+    Returns:
+        (per partition: labels and exact-row share, whether the executor ran them).
+    """
+    def report(i: int) -> None:
+        progress(ProgressEvent(Phase.CLUSTER, i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
+
+    if executor is not None:
+        futures: list[Future[tuple[np.ndarray, float]]] = []
+        try:
+            futures.extend(executor.submit(cluster_job, p, e, config, min_cluster_size) for p, e in jobs)
+            results = []
+            for i, future in enumerate(futures):
+                results.append(future.result())
+                report(i)
+            return results, True
+        except (BrokenProcessPool, RuntimeError, OSError) as err:
+            for future in futures:
+                future.cancel()
+            stats['parallel_error'] = f'{type(err).__name__}: {err}'.splitlines()[0]
+    results = []
+    for i, (p, e) in enumerate(jobs):
+        results.append(cluster_partition(p, e, config, min_cluster_size=min_cluster_size, workers=config.n_jobs))
+        report(i)
+    return results, False
+
+
+def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *, executor: Executor | None = None,
                  progress: ProgressCallback | None = None) -> CountResult:
     """Cluster a fruit point cloud into fruits with the paper's multi-modal metric.
 
@@ -110,6 +107,10 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         cloud: the exported fruit points (xyz in m, unit embeddings).
         config: clustering settings (defaults when None); its cluster sizes are scaled to ``cloud.spacing_m`` (the
             export voxel) when known (:meth:`ClusterConfig.for_spacing`).
+        executor: where partitions run when there are several and at least ``config.parallel_min_points`` points
+            are clustered (e.g. :func:`~fruitnerfpp_ros.core.clustering.workers.partition_pool`); the caller owns
+            and shuts it down. None: every partition runs in this process (KD-tree queries on ``config.n_jobs``
+            threads). The labels are the same either way.
         progress: receives ``cluster`` phase events (one per partition).
 
     Returns:
@@ -146,30 +147,10 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
     parts = make_partitions(xyz_sub, n_partitions, overlap_m=config.overlap_m, seed=config.seed)
     t_part = time.perf_counter()
 
-    n_jobs = min(config.n_jobs, len(parts.members))
     jobs = [(xyz_sub[m], emb_sub[m]) for m in parts.members]
-    results: list[tuple[np.ndarray, float]] = []
-    parallel = n_jobs > 1 and n_sub >= config.parallel_min_points
-    if parallel and not _main_module_is_spawn_safe():
-        stats['parallel_error'] = 'main script has no __main__ guard; partitions ran in this process'
-        parallel = False
-    if parallel:
-        try:
-            pool = _pool(n_jobs)
-            futures = [pool.submit(cluster_job, p, e, config, min_cluster_size) for p, e in jobs]
-            for i, future in enumerate(futures):
-                results.append(future.result())
-                progress(ProgressEvent(Phase.CLUSTER, i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
-        except (BrokenProcessPool, RuntimeError, OSError) as err:
-            # e.g. a script without an ``if __name__ == '__main__'`` guard cannot spawn workers
-            shutdown_workers()
-            stats['parallel_error'] = f'{type(err).__name__}: {err}'.splitlines()[0]
-            parallel, results = False, []
-    if not parallel:
-        for i, (p, e) in enumerate(jobs):
-            results.append(cluster_partition(p, e, config, min_cluster_size=min_cluster_size,
-                                             workers=config.n_jobs))
-            progress(ProgressEvent(Phase.CLUSTER, i + 1, len(jobs), f'partition {i + 1}/{len(jobs)}'))
+    use_executor = executor is not None and len(jobs) > 1 and n_sub >= config.parallel_min_points
+    results, parallel = _cluster_partitions(jobs, config, min_cluster_size, executor if use_executor else None,
+                                            progress, stats)
     t_hdb = time.perf_counter()
 
     clusters = []
@@ -200,7 +181,7 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
     exact = [r[1] for r in results]
     stats.update({
         'n_clustered': n_sub, 'partitions': len(parts.members), 'min_cluster_size_used': min_cluster_size,
-        'parallel_jobs': n_jobs if parallel else 1,
+        'partitions_in_executor': len(jobs) if parallel else 0,
         'clusters_before_merge': clusters_before_merge,
         'clusters_before_size_filter': clusters_before_filter, 'clusters_split': n_split,
         'noise_points': int(np.count_nonzero(final_labels == 0)),

@@ -10,6 +10,7 @@ from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
 from fruitnerfpp_ros.core.clustering.synthetic_cloud import make_fruit_cloud
+from fruitnerfpp_ros.core.clustering.workers import partition_pool
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.errors import ClusteringError, ConfigError
 
@@ -66,13 +67,17 @@ def test_subsample_and_assign_matches_full_clustering() -> None:
     assert adjusted_rand_score(synth.labels, result.labels) > 0.95
 
 
-def test_parallel_partitions_give_the_serial_result() -> None:
+def test_partitions_in_a_caller_owned_pool_give_the_in_process_labels() -> None:
     synth = make_fruit_cloud(6000, 24, seed=7)
-    serial = count_fruits(synth.cloud, ClusterConfig(partitions=2, n_jobs=1))
-    parallel = count_fruits(synth.cloud, ClusterConfig(partitions=2, n_jobs=2, parallel_min_points=1000))
-    assert parallel.stats['parallel_jobs'] == 2, parallel.stats.get('parallel_error')
-    assert parallel.count == serial.count == 24
-    assert np.array_equal(parallel.labels, serial.labels)
+    config = ClusterConfig(partitions=2, n_jobs=2, parallel_min_points=1000)
+    in_process = count_fruits(synth.cloud, config)
+    with partition_pool(config.n_jobs) as pool:
+        pooled = count_fruits(synth.cloud, config, executor=pool)
+        assert pool.submit(int, 7).result() == 7  # the count leaves the caller's pool running
+    assert in_process.stats['partitions_in_executor'] == 0
+    assert pooled.stats['partitions_in_executor'] == 2, pooled.stats.get('parallel_error')
+    assert pooled.count == in_process.count == 24
+    assert np.array_equal(pooled.labels, in_process.labels)
 
 
 def test_concatenated_metric_is_available_as_an_option() -> None:
