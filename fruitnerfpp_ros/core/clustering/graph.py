@@ -13,6 +13,8 @@ import numpy as np
 import scipy.sparse
 from scipy.spatial import cKDTree
 
+from fruitnerfpp_ros.errors import ClusteringError
+
 __all__ = ['NeighbourGraph', 'pair_metric', 'build_graph', 'nearest_labels']
 
 _CHUNK = 32768
@@ -36,13 +38,16 @@ def pair_metric(cos: np.ndarray, dist_m: np.ndarray, *, lambda_c: float, lambda_
 
     ``summed`` is the paper's ``lambda_c (1 - cos) + lambda_e |dx|``; ``concatenated`` the approximation
     ``sqrt(lambda_e^2 |dx|^2 + lambda_c (1 - cos))`` (distance of concatenated scaled features).
+
+    Raises:
+        ClusteringError: an unknown ``metric``.
     """
     cos_gap = np.clip(1.0 - cos, 0.0, 2.0)
     if metric == 'summed':
         return lambda_c * cos_gap + lambda_e * dist_m
     if metric == 'concatenated':
         return np.sqrt((lambda_e * dist_m) ** 2 + lambda_c * cos_gap)
-    raise ValueError(f'unknown metric {metric!r}')
+    raise ClusteringError(f"unknown clustering metric {metric!r} (expected 'summed' or 'concatenated')")
 
 
 def _row_cosines(emb_rows: np.ndarray, emb_all: np.ndarray, idx: np.ndarray) -> np.ndarray:

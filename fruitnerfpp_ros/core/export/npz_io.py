@@ -44,13 +44,16 @@ def read_npz(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
             if missing:
                 raise ExportError(f'{path}: missing array(s) {", ".join(missing)}')
             spacing = float(data['spacing_m']) if 'spacing_m' in data else None
-            cloud = FruitPointCloud(*(np.asarray(data[k]) for k in _KEYS), spacing_m=spacing)
+            arrays = [np.asarray(data[k]) for k in _KEYS]
             labels = np.asarray(data['labels']) if 'labels' in data else None
     except FileNotFoundError as err:
         raise ExportError(f'{path}: point cloud file not found') from err
     except (zipfile.BadZipFile, ValueError, OSError) as err:
         raise ExportError(f'{path}: not a readable point cloud .npz: {err}') from err
-    return cloud, labels
+    try:
+        return FruitPointCloud(*arrays, spacing_m=spacing), labels
+    except ExportError as err:
+        raise ExportError(f'{path}: {err}') from err
 
 
 def read_cloud(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:

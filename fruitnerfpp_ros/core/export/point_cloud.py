@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fruitnerfpp_ros.errors import ExportError
+
 __all__ = ['FruitPointCloud']
 
 
@@ -20,6 +22,9 @@ class FruitPointCloud:
         embedding: [N, D] float32 instance embeddings (L2-normalised).
         spacing_m: the sampling grid's spacing (the export voxel, m) when known; clustering scales its cluster
             sizes to it (``ClusterConfig.reference_spacing_m``). Saved in the PLY header and the .npz.
+
+    Raises:
+        ExportError: the arrays' shapes disagree.
     """
 
     xyz: np.ndarray
@@ -32,8 +37,8 @@ class FruitPointCloud:
         n = len(self.xyz)
         if self.xyz.shape != (n, 3) or self.rgb.shape != (n, 3) or self.semantic.shape != (n,) \
                 or self.embedding.ndim != 2 or len(self.embedding) != n:
-            raise ValueError(f'inconsistent FruitPointCloud shapes: xyz {self.xyz.shape}, rgb {self.rgb.shape}, '
-                             f'semantic {self.semantic.shape}, embedding {self.embedding.shape}')
+            raise ExportError(f'inconsistent FruitPointCloud shapes: xyz {self.xyz.shape}, rgb {self.rgb.shape}, '
+                              f'semantic {self.semantic.shape}, embedding {self.embedding.shape}')
 
     def __len__(self) -> int:
         return len(self.xyz)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import bisect
 from typing import Any, Generic, NamedTuple, Sequence, TypeVar
 
+from fruitnerfpp_ros.errors import ConfigError
+
 __all__ = ['SyncedSet', 'ApproximateTimeSynchronizer']
 
 T = TypeVar('T')
@@ -29,13 +31,17 @@ class ApproximateTimeSynchronizer(Generic[T]):
         names: one name per input (used in statistics and messages).
         slop_ns: largest stamp difference within a set, nanoseconds.
         queue_size: items kept per input; the oldest is dropped (and counted) when full.
+
+    Raises:
+        ConfigError: no inputs, a negative ``slop_ns`` or a ``queue_size`` below 1.
     """
 
     def __init__(self, names: Sequence[str], slop_ns: int, queue_size: int = 30) -> None:
         if not names:
-            raise ValueError('a synchroniser needs at least one input')
+            raise ConfigError('approximate-time synchroniser: needs at least one input')
         if slop_ns < 0 or queue_size < 1:
-            raise ValueError('slop_ns must be >= 0 and queue_size >= 1')
+            raise ConfigError(f'approximate-time synchroniser: slop_ns must be >= 0 and queue_size >= 1, got '
+                              f'slop_ns={slop_ns}, queue_size={queue_size}')
         self.names = tuple(names)
         self.slop_ns = int(slop_ns)
         self.queue_size = int(queue_size)

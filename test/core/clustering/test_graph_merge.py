@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from fruitnerfpp_ros.core.clustering.graph import build_graph, nearest_labels, pair_metric
 from fruitnerfpp_ros.core.clustering.merge import merge_close_centers, merge_clusters
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
+from fruitnerfpp_ros.errors import ClusteringError
 
 
 def _random_cloud(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -42,6 +44,14 @@ def test_concatenated_metric_formula() -> None:
     np.testing.assert_allclose(pair_metric(cos, dist, lambda_c=1, lambda_e=10, metric='concatenated'), [1.0, 1.0])
     np.testing.assert_allclose(pair_metric(np.array([0.5]), np.array([0.03]), lambda_c=1, lambda_e=10,
                                            metric='concatenated'), [np.sqrt(0.09 + 0.5)])
+
+
+def test_unknown_metric_raises_clustering_error() -> None:
+    with pytest.raises(ClusteringError, match="unknown clustering metric 'cosine'"):
+        pair_metric(np.array([1.0]), np.array([0.1]), lambda_c=1, lambda_e=2, metric='cosine')
+    xyz, emb = _random_cloud(50)
+    with pytest.raises(ClusteringError, match='unknown clustering metric'):
+        build_graph(xyz, emb, knn_k=4, candidate_factor=2, lambda_c=1, lambda_e=2, metric='manhattan')
 
 
 def test_nearest_labels_prefers_the_matching_embedding() -> None:

@@ -83,3 +83,15 @@ def test_read_errors_name_the_file(tmp_path: Path) -> None:
     path.write_bytes(path.read_bytes()[:-10])
     with pytest.raises(ExportError, match='truncated'):
         read_ply(path)
+
+
+def test_inconsistent_cloud_arrays_raise_export_error_naming_the_file(tmp_path: Path) -> None:
+    good = make_fruit_cloud(50, 2, dim=4, seed=3).cloud
+    with pytest.raises(ExportError, match=r'inconsistent FruitPointCloud shapes: xyz \(50, 3\), rgb \(49, 3\)'):
+        FruitPointCloud(good.xyz, good.rgb[:49], good.semantic, good.embedding)
+    with pytest.raises(ExportError, match='inconsistent FruitPointCloud shapes'):
+        FruitPointCloud(good.xyz, good.rgb, good.semantic, good.embedding[:, 0])
+    np.savez(tmp_path / 'short.npz', xyz=good.xyz, rgb=good.rgb, semantic=good.semantic[:10],
+             embedding=good.embedding)
+    with pytest.raises(ExportError, match=r'short\.npz: inconsistent FruitPointCloud shapes'):
+        read_npz(tmp_path / 'short.npz')

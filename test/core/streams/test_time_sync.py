@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import pytest
+
 from fruitnerfpp_ros.core.streams.time_sync import ApproximateTimeSynchronizer
+from fruitnerfpp_ros.errors import ConfigError
 
 MS = 1_000_000
 
@@ -41,3 +44,12 @@ def test_queue_bound_counts_overflow() -> None:
         sync.add(0, k, k)
     assert sync.pending()['image'] == 3 and sync.overflow['image'] == 7
     assert sync.add(1, 9, 'm')[0].items == (9, 'm')
+
+
+def test_impossible_settings_raise_config_error() -> None:
+    with pytest.raises(ConfigError, match='needs at least one input'):
+        ApproximateTimeSynchronizer([], slop_ns=MS)
+    with pytest.raises(ConfigError, match='slop_ns must be >= 0 .* got slop_ns=-1, queue_size=30'):
+        ApproximateTimeSynchronizer(['image'], slop_ns=-1)
+    with pytest.raises(ConfigError, match='queue_size >= 1, got slop_ns=0, queue_size=0'):
+        ApproximateTimeSynchronizer(['image'], slop_ns=0, queue_size=0)
