@@ -24,10 +24,12 @@ from typing import Any, NamedTuple
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
 from fruitnerfpp_ros.core.progress import ProgressCallback
 from fruitnerfpp_ros.errors import BagError, ConfigError
-from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler, LogFunction
+from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler
+from fruitnerfpp_ros.nodes.log import LogFunction, LogLevel
 from fruitnerfpp_ros.nodes.params import CounterSettings, keyframe_config, pipeline_configs
 from fruitnerfpp_ros.nodes.results import (DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, RESULTS_NODE_NAME, diagnostics_msg,
                                            result_messages, write_report)
+from fruitnerfpp_ros.nodes.status import AssemblerStatus, DiagnosticLevel, NodeState
 
 __all__ = ['ROLE_TYPES', 'ReplayResult', 'collect_keyframes', 'replay_bag', 'write_results_mcap', 'main']
 
@@ -56,7 +58,7 @@ class ReplayResult(NamedTuple):
         report_path: fruit_report.json (None when training was skipped).
         results_mcap: results.mcap (None when training was skipped).
         pipeline: the core's PipelineResult (None when training was skipped).
-        status: collection counters (messages per role, errors, sync).
+        status: the collection counters (messages per role, errors, sync).
     """
 
     run_dir: Path
@@ -66,11 +68,11 @@ class ReplayResult(NamedTuple):
     report_path: Path | None
     results_mcap: Path | None
     pipeline: Any
-    status: dict[str, Any]
+    status: AssemblerStatus
 
 
-def _print_log(level: str, message: str) -> None:
-    print(f'[{level}] {message}', file=sys.stderr if level != 'info' else sys.stdout, flush=True)
+def _print_log(level: LogLevel, message: str) -> None:
+    print(f'[{level}] {message}', file=sys.stdout if level is LogLevel.INFO else sys.stderr, flush=True)
 
 
 def _topics_table(reader: Any) -> str:
@@ -121,7 +123,7 @@ def collect_keyframes(bag_path: str | Path, keyframes_dir: str | Path, settings:
             roles[topic] = role
         unused = sorted(set(by_topic) - set(roles))
         if unused:
-            log('info', f'{bag_path}: ignoring topics {", ".join(unused)}')
+            log(LogLevel.INFO, f'{bag_path}: ignoring topics {", ".join(unused)}')
         connections = [c for c in reader.connections if c.topic in roles]
         try:
             for connection, _, raw in reader.messages(connections=connections):
@@ -132,7 +134,7 @@ def collect_keyframes(bag_path: str | Path, keyframes_dir: str | Path, settings:
                     msg = reader.deserialize(raw, connection.msgtype)
                 except Exception as err:  # noqa: BLE001
                     assembler.errors[role] += 1
-                    log('warn', f'{connection.topic}: undecodable message skipped ({type(err).__name__}: {err})')
+                    log(LogLevel.WARN, f'{connection.topic}: undecodable message skipped ({type(err).__name__}: {err})')
                     continue
                 assembler.on_message(role, msg)
         except BagError:
@@ -213,15 +215,15 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
     if keyframes_dir.exists():  # a replay collects afresh; earlier keyframes are kept aside, not mixed in
         previous = keyframes_dir.with_name(f'keyframes_previous_{time.time_ns()}')
         keyframes_dir.rename(previous)
-        log('info', f'{keyframes_dir} existed: moved to {previous}')
+        log(LogLevel.INFO, f'{keyframes_dir} existed: moved to {previous}')
     assembler = collect_keyframes(bag_path, keyframes_dir, settings, log=log, stop_event=stop_event)
     status = assembler.status()
     n_keyframes = len(assembler.store)
-    log('info', f'{bag_path}: {n_keyframes} keyframe(s) from {status["received"].get("image", 0)} image(s) '
+    log(LogLevel.INFO, f'{bag_path}: {n_keyframes} keyframe(s) from {status.received.get("image", 0)} image(s) '
         f'in {keyframes_dir}')
     if n_keyframes == 0:
-        raise BagError(f'{bag_path}: no keyframe could be made; received {status["received"]}, errors '
-                       f'{status["errors"]}, unmatched stamps {status["sync_unmatched"]}')
+        raise BagError(f'{bag_path}: no keyframe could be made; received {dict(status.received)}, errors '
+                       f'{dict(status.errors)}, unmatched stamps {dict(status.sync_unmatched)}')
     if not train:
         return ReplayResult(run_dir, keyframes_dir, n_keyframes, None, None, None, None, status)
     if n_keyframes < settings.min_keyframes:
@@ -231,7 +233,7 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
     from fruitnerfpp_ros.core.pipeline import run_pipeline
     configs = pipeline_configs(settings)
     for warning in configs.warnings:
-        log('warn', warning)
+        log(LogLevel.WARN, warning)
     with partition_pool(configs.cluster.n_jobs) as pool:  # the replay owns the clustering workers
         result = run_pipeline(keyframes_dir, run_dir, train_config=configs.train,
                               export_config=configs.export, cluster_config=configs.cluster,
@@ -244,9 +246,10 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
     extra = {'keyframes': n_keyframes, 'source': str(bag_path), 'preset': configs.preset}
     messages = result_messages(result.count, result.cloud, settings.world_frame, stamp_ns, run_id, extra)
     report_path = write_report(run_dir / REPORT_NAME, messages['fruit_report'].data)
-    diagnostics = diagnostics_msg(f'{RESULTS_NODE_NAME}: pipeline', RESULTS_NODE_NAME, 'ok',
-                                  f'done: {result.count.count} fruits', {'state': 'done', 'keyframes': n_keyframes,
-                                                                         'fruits': result.count.count}, stamp_ns)
+    diagnostics = diagnostics_msg(f'{RESULTS_NODE_NAME}: pipeline', RESULTS_NODE_NAME, DiagnosticLevel.OK,
+                                  f'{NodeState.DONE}: {result.count.count} fruits',
+                                  {'state': NodeState.DONE, 'keyframes': n_keyframes, 'fruits': result.count.count},
+                                  stamp_ns)
     topics = [(f'/{RESULTS_NODE_NAME}/{t.name}', t.msg_type, messages[t.name]) for t in OUTPUT_TOPICS]
     topics.append((DIAGNOSTICS_TOPIC, 'diagnostic_msgs/msg/DiagnosticArray', diagnostics))
     results_mcap = write_results_mcap(run_dir / RESULTS_NAME, topics, stamp_ns)

@@ -13,7 +13,6 @@ Bad input never raises out of :meth:`on_message`: it is logged (throttled per ki
 from __future__ import annotations
 
 import re
-import time
 from collections import Counter
 from typing import Any, Callable
 
@@ -27,32 +26,12 @@ from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
 from fruitnerfpp_ros.nodes.conversions import (CameraModel, add_tf_message, camera_model_from_camera_info,
                                                image_from_msg, stamp_ns_from_header, transform_from_pose_msg,
                                                undistort_image, undistort_mask)
+from fruitnerfpp_ros.nodes.log import LogFunction, LogLevel, ThrottledLog
 from fruitnerfpp_ros.nodes.mask_source import MaskSource, mask_source_from_settings
 from fruitnerfpp_ros.nodes.params import CounterSettings
+from fruitnerfpp_ros.nodes.status import AssemblerStatus
 
-__all__ = ['LogFunction', 'FrameAssembler', 'ThrottledLog']
-
-#: ``log(level, message)`` with level ``info`` / ``warn`` / ``error``.
-LogFunction = Callable[[str, str], None]
-
-
-class ThrottledLog:
-    """Logs the first message of each kind at once, then at most one per ``period_s`` with a suppressed count."""
-
-    def __init__(self, log: LogFunction, period_s: float = 5.0) -> None:
-        self._log = log
-        self.period_s = period_s
-        self._last: dict[str, float] = {}
-        self._suppressed: Counter[str] = Counter()
-
-    def __call__(self, level: str, kind: str, message: str) -> None:
-        now = time.monotonic()
-        if now - self._last.get(kind, -1e18) < self.period_s:
-            self._suppressed[kind] += 1
-            return
-        suppressed = self._suppressed.pop(kind, 0)
-        self._last[kind] = now
-        self._log(level, message + (f' ({suppressed} similar messages suppressed)' if suppressed else ''))
+__all__ = ['FrameAssembler']
 
 
 class FrameAssembler:
@@ -115,10 +94,10 @@ class FrameAssembler:
             return self._dispatch(role, msg)
         except FruitNerfError as err:
             self.errors[role] += 1
-            self._throttled('warn', _kind(f'bad:{role}:{err}'), f'{self.topic_of(role)}: {err}; message dropped')
+            self._throttled(LogLevel.WARN, _kind(f'bad:{role}:{err}'), f'{self.topic_of(role)}: {err}; message dropped')
         except Exception as err:  # noqa: BLE001 - a malformed message must never stop the node
             self.errors[role] += 1
-            self._throttled('warn', f'bad:{role}', f'{self.topic_of(role)}: cannot read message '
+            self._throttled(LogLevel.WARN, f'bad:{role}', f'{self.topic_of(role)}: cannot read message '
                             f'({type(err).__name__}: {err}); message dropped')
         return []
 
@@ -129,8 +108,8 @@ class FrameAssembler:
         if role == 'camera_info':
             camera = camera_model_from_camera_info(msg, topic=self.settings.camera_info_topic)
             if self.camera is None:
-                self._log('info', f'{self.settings.camera_info_topic}: {camera.intrinsics.w}x{camera.intrinsics.h} '
-                          f'camera, distortion {camera.distortion_model or "none"}')
+                self._log(LogLevel.INFO, f'{self.settings.camera_info_topic}: {camera.intrinsics.w}x'
+                          f'{camera.intrinsics.h} camera, distortion {camera.distortion_model or "none"}')
             self.camera = camera
             return self._drain()
         if role not in self._sync_index:
@@ -142,7 +121,7 @@ class FrameAssembler:
         before = sum(self.sync.unmatched.values())
         self._pending.extend(self.sync.add(self._sync_index[role], stamp_ns, msg))
         if sum(self.sync.unmatched.values()) > before:
-            self._throttled('warn', 'unsynced', f'{", ".join(self.topic_of(r) for r in self._sync_index)}: '
+            self._throttled(LogLevel.WARN, 'unsynced', f'{", ".join(self.topic_of(r) for r in self._sync_index)}: '
                             f'stamps do not match within sync_slop_s={self.settings.sync_slop_s} s; '
                             f'unmatched so far {dict(self.sync.unmatched)}')
         return self._drain()
@@ -158,13 +137,13 @@ class FrameAssembler:
                 if final or too_old:
                     self.dropped_pending += 1
                     self.errors['waiting'] += 1
-                    self._throttled('warn', f'drop:{type(err).__name__}', f'frame at {synced.stamp_ns} ns dropped: '
-                                    f'{err}')
+                    self._throttled(LogLevel.WARN, f'drop:{type(err).__name__}',
+                                    f'frame at {synced.stamp_ns} ns dropped: {err}')
                 else:
                     waiting.append(synced)
             except FruitNerfError as err:
                 self.errors['frame'] += 1
-                self._throttled('warn', _kind(f'frame:{err}'), f'frame at {synced.stamp_ns} ns dropped: {err}')
+                self._throttled(LogLevel.WARN, _kind(f'frame:{err}'), f'frame at {synced.stamp_ns} ns dropped: {err}')
         self._pending = waiting
         for decision in decisions:
             self.decisions[decision.value] += 1
@@ -202,9 +181,9 @@ class FrameAssembler:
         if decision is KeyframeDecision.ACCEPTED:
             n = len(self.store)
             if n == 1 or n % 10 == 0:
-                self._log('info', f'{n} keyframe(s) collected in {self.store.directory}')
+                self._log(LogLevel.INFO, f'{n} keyframe(s) collected in {self.store.directory}')
         elif decision is KeyframeDecision.FULL:
-            self._throttled('warn', 'full', f'max_keyframes={self.store.config.max_keyframes} reached; '
+            self._throttled(LogLevel.WARN, 'full', f'max_keyframes={self.store.config.max_keyframes} reached; '
                             'further frames are ignored (call ~/train or ~/reset)')
         return decision
 
@@ -233,12 +212,11 @@ class FrameAssembler:
             raise TfFutureError(str(err)) from err
 
     # ------------------------------------------------------------------ status
-    def status(self) -> dict[str, Any]:
-        """Counters for diagnostics and reports."""
-        return {'keyframes': len(self.store), 'received': dict(self.received), 'errors': dict(self.errors),
-                'decisions': dict(self.decisions), 'rejected': {k.value: v for k, v in self.store.rejected.items()},
-                'sync_matched': self.sync.matched, 'sync_unmatched': dict(self.sync.unmatched),
-                'waiting': len(self._pending), 'dropped_waiting': self.dropped_pending}
+    def status(self) -> AssemblerStatus:
+        """Counters for diagnostics and reports (a copy: later messages do not change it)."""
+        return AssemblerStatus(len(self.store), dict(self.received), dict(self.errors), dict(self.decisions),
+                               {k.value: v for k, v in self.store.rejected.items()}, self.sync.matched,
+                               dict(self.sync.unmatched), len(self._pending), self.dropped_pending)
 
 
 def _kind(message: str) -> str:

@@ -14,6 +14,7 @@ segmenter, ``mask_source``) / pose (``pose_topic``, ``odometry_topic`` or /tf + 
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import itertools
 import os
@@ -35,12 +36,14 @@ from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityP
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
 from fruitnerfpp_ros.core.progress import ProgressEvent
 from fruitnerfpp_ros.errors import FruitNerfError
-from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler, ThrottledLog
+from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler
+from fruitnerfpp_ros.nodes.log import LogLevel, ThrottledLog
 from fruitnerfpp_ros.nodes.mask_source import mask_source_from_settings
 from fruitnerfpp_ros.nodes.params import declare_parameters, keyframe_config, pipeline_configs, settings_mapping
 from fruitnerfpp_ros.nodes.results import (DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, diagnostics_msg, result_messages,
                                            write_report)
 from fruitnerfpp_ros.nodes.node_main import spin_node
+from fruitnerfpp_ros.nodes.status import NodeState, NodeStatus, RunStatus
 
 __all__ = ['FruitCounterNode', 'main', 'default_output_dir', 'LATCHED_QOS']
 
@@ -50,7 +53,6 @@ LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=R
 _TF_STATIC_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE,
                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _TF_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=100, reliability=ReliabilityPolicy.RELIABLE)
-_TRAIN_STATES = {'train': 'training', 'export': 'exporting', 'cluster': 'counting', 'count': 'counting'}
 
 
 def default_output_dir() -> Path:
@@ -105,7 +107,7 @@ class FruitCounterNode(Node):
             from tf2_msgs.msg import TFMessage
         except ImportError:
             needs_tf = s.pose_source == 'tf' or (s.pose_source == 'odometry' and not s.camera_extrinsic)
-            self._log('error' if needs_tf else 'info',
+            self._log(LogLevel.ERROR if needs_tf else LogLevel.INFO,
                       'tf2_msgs is not installed in this Python environment (it is not on PyPI): /tf and /tf_static '
                       'are not subscribed' + ("; pose_source needs them: use pose_source 'pose', or 'odometry' "
                                               'with camera_extrinsic, or run inside a ROS 2 installation'
@@ -135,12 +137,7 @@ class FruitCounterNode(Node):
 
         # Training state (written by the training thread, read by diagnostics and services).
         self._state_lock = threading.Lock()
-        self.state = 'collecting'
-        self.phase = ''
-        self.progress = 0.0
-        self.last_error = ''
-        self.last_count: int | None = None
-        self.last_report: str | None = None
+        self._run = RunStatus()
         self._train_thread: threading.Thread | None = None
         self._stop_event = threading.Event()
         self._train_index = 0
@@ -152,11 +149,11 @@ class FruitCounterNode(Node):
                                f'{masks}, {trigger})')
 
     # ------------------------------------------------------------------ logging
-    def _log(self, level: str, message: str) -> None:
+    def _log(self, level: LogLevel, message: str) -> None:
         # One call site per severity: rclpy refuses a severity change at one call site.
-        if level == 'error':
+        if level is LogLevel.ERROR:
             self.get_logger().error(message)
-        elif level == 'warn':
+        elif level is LogLevel.WARN:
             self.get_logger().warning(message)
         else:
             self.get_logger().info(message)
@@ -190,41 +187,50 @@ class FruitCounterNode(Node):
             try:
                 self.assembler.on_message(role, msg)
             except Exception as err:  # noqa: BLE001 - nothing a message does may stop the node
-                self._log('error', f'{self.assembler.topic_of(role)}: message dropped: {type(err).__name__}: {err}')
+                self._log(LogLevel.ERROR, f'{self.assembler.topic_of(role)}: message dropped: '
+                          f'{type(err).__name__}: {err}')
         s = self.settings
         if s.auto_train_after and not self._auto_started and len(self.store) >= s.auto_train_after:
             self._auto_started = True
             ok, message = self.start_training()
-            self._log('info' if ok else 'warn', f'auto-train after {s.auto_train_after} keyframes: {message}')
+            self._log(LogLevel.INFO if ok else LogLevel.WARN,
+                      f'auto-train after {s.auto_train_after} keyframes: {message}')
 
     # ------------------------------------------------------------------ training
     @property
     def training(self) -> bool:
         return self._train_thread is not None and self._train_thread.is_alive()
 
+    @property
+    def run_status(self) -> RunStatus:
+        """State of the training runs: state, phase, progress, last error, last count and report."""
+        with self._state_lock:
+            return self._run
+
+    def _update_run(self, **changes: Any) -> None:
+        """Replace fields of the run status (from the training thread and the services)."""
+        with self._state_lock:
+            self._run = dataclasses.replace(self._run, **changes)
+
     def start_training(self) -> tuple[bool, str]:
         """Start a training run on the keyframes collected so far; returns (started, message)."""
         if self.training:
-            return False, f'training already running ({self.phase or self.state})'
+            run = self.run_status
+            return False, f'training already running ({run.phase or run.state})'
         n = len(self.store)
         if n < self.settings.min_keyframes:
             return False, f'only {n} keyframe(s) collected, min_keyframes is {self.settings.min_keyframes}'
         self._train_index += 1
         index = self._train_index
         self._stop_event = threading.Event()
-        with self._state_lock:
-            self.state, self.phase, self.progress, self.last_error = 'training', '', 0.0, ''
+        self._update_run(state=NodeState.TRAINING, phase=None, progress=0.0, last_error='')
         self._train_thread = threading.Thread(target=self._train_worker, args=(index, self._stop_event),
                                               name=f'fruit_counter_train_{index}', daemon=True)
         self._train_thread.start()
         return True, f'training run {index} started on {n} keyframes ({self.run_dir / f"train_{index:03d}"})'
 
     def _on_progress(self, event: ProgressEvent) -> None:
-        head = event.phase.split(':')[0]
-        with self._state_lock:
-            self.state = _TRAIN_STATES.get(head, 'training')
-            self.phase = event.phase
-            self.progress = event.fraction
+        self._update_run(state=NodeState.during(event.phase.stage), phase=event.phase, progress=event.fraction)
 
     def _train_worker(self, index: int, stop_event: threading.Event) -> None:
         try:
@@ -241,8 +247,7 @@ class FruitCounterNode(Node):
                                       cluster_config=configs.cluster, device=self.settings.device,
                                       progress=self._on_progress, stop_event=stop_event, executor=pool)
             if stop_event.is_set():
-                with self._state_lock:
-                    self.state, self.phase = 'collecting', ''
+                self._update_run(state=NodeState.COLLECTING, phase=None)
                 self.get_logger().info(f'training run {index} stopped')
                 return
             messages = result_messages(result.count, result.cloud, self.settings.world_frame, stamp_ns,
@@ -251,10 +256,8 @@ class FruitCounterNode(Node):
             for name, msg in messages.items():
                 self._result_pubs[name].publish(msg)
             write_report(self.run_dir / f'train_{index:03d}' / 'fruit_report.json', messages['fruit_report'].data)
-            with self._state_lock:
-                self.state, self.phase, self.progress = 'done', '', 1.0
-                self.last_count = int(result.count.count)
-                self.last_report = messages['fruit_report'].data
+            self._update_run(state=NodeState.DONE, phase=None, progress=1.0, last_count=int(result.count.count),
+                             last_report=messages['fruit_report'].data)
             self.get_logger().info(f'training run {index}: {result.count.count} fruits counted from '
                                    f'{n_keyframes} keyframes; published on ~/fruit_count and friends')
         except FruitNerfError as err:
@@ -263,8 +266,7 @@ class FruitCounterNode(Node):
             self._training_failed(index, f'{type(err).__name__}: {err}')
 
     def _training_failed(self, index: int, message: str) -> None:
-        with self._state_lock:
-            self.state, self.last_error = 'error', message
+        self._update_run(state=NodeState.ERROR, last_error=message)
         self.get_logger().error(f'training run {index} failed: {message}; the keyframes stay in '
                                 f'{self.store.directory}')
 
@@ -284,16 +286,16 @@ class FruitCounterNode(Node):
         moved = self.store.reset()
         self.assembler.reset()
         self._auto_started = False
-        with self._state_lock:
-            self.state, self.phase, self.progress, self.last_error = 'collecting', '', 0.0, ''
+        self._update_run(state=NodeState.COLLECTING, phase=None, progress=0.0, last_error='')
         response.success = True
         response.message = f'reset; previous keyframes kept in {moved}' if moved else 'reset; nothing collected yet'
         return response
 
     def _on_save(self, request: Any, response: Any) -> Any:
         saved = [f'keyframes: {self.store.directory} ({len(self.store)})']
-        if self.last_report is not None:
-            saved.append(f'report: {write_report(self.run_dir / "fruit_report.json", self.last_report)}')
+        report = self.run_status.last_report
+        if report is not None:
+            saved.append(f'report: {write_report(self.run_dir / "fruit_report.json", report)}')
         response.success, response.message = True, '; '.join(saved)
         return response
 
@@ -305,27 +307,21 @@ class FruitCounterNode(Node):
             rates = {role: n / s.diagnostics_period_s for role, n in self._rate_window.items()}
             self._rate_window = dict.fromkeys(self._rate_window, 0)
             last_rx = dict(self._last_rx)
-        with self._state_lock:
-            state, phase, progress, error = self.state, self.phase, self.progress, self.last_error
+        run = self.run_status
         # Inputs are expected while collecting; once a drive is done and training runs, silence is normal.
         silent = [role for role in self.assembler.required_roles() if role in self._queues
                   and now - last_rx.get(role, self._started) > s.silent_input_warning_s] \
-            if state == 'collecting' and not self.training else []
+            if run.state is NodeState.COLLECTING and not self.training else []
         for role in silent:
-            self._warn_throttled('warn', f'silent:{role}', f'no message on {self.assembler.topic_of(role)} for '
-                                 f'{now - last_rx.get(role, self._started):.0f} s')
-        status = self.assembler.status()
-        level = 'error' if state == 'error' else 'warn' if silent else 'ok'
-        message = (f'{state}' + (f' {phase} {100 * progress:.0f}%' if phase else '')
-                   + (f'; silent inputs: {", ".join(self.assembler.topic_of(r) for r in silent)}' if silent else '')
-                   + (f'; {error}' if error else ''))
-        values = {'state': state, 'phase': phase, 'progress': f'{progress:.3f}', 'keyframes': status['keyframes'],
-                  'fruit_count': '' if self.last_count is None else self.last_count, 'run_dir': self.run_dir,
-                  'dropped_queue': sum(self.dropped.values()), 'frame_errors': sum(status['errors'].values()),
-                  'sync_unmatched': sum(status['sync_unmatched'].values())}
-        values.update({f'rate_hz/{self.assembler.topic_of(r)}': f'{v:.1f}' for r, v in rates.items()})
-        self._diagnostics_pub.publish(diagnostics_msg(f'{self.get_name()}: pipeline', self.get_name(), level,
-                                                      message, values, self.get_clock().now().nanoseconds))
+            self._warn_throttled(LogLevel.WARN, f'silent:{role}', f'no message on {self.assembler.topic_of(role)} '
+                                 f'for {now - last_rx.get(role, self._started):.0f} s')
+        status = NodeStatus.from_parts(run, self.assembler.status(), dropped_queue=sum(self.dropped.values()),
+                                       run_dir=self.run_dir,
+                                       rates_hz={self.assembler.topic_of(r): v for r, v in rates.items()},
+                                       silent_topics=tuple(self.assembler.topic_of(r) for r in silent))
+        self._diagnostics_pub.publish(diagnostics_msg(f'{self.get_name()}: pipeline', self.get_name(), status.level,
+                                                      status.message(), status.values(),
+                                                      self.get_clock().now().nanoseconds))
 
 
 def main(args: list[str] | None = None) -> int:

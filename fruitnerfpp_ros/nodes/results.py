@@ -17,6 +17,7 @@ from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.nodes.conversions import (cloud_msg_from_points, markers_from_fruits, pose_array_from_centers,
                                                report_json, time_msg_from_ns)
+from fruitnerfpp_ros.nodes.status import DiagnosticLevel
 
 __all__ = ['OutputTopic', 'OUTPUT_TOPICS', 'DIAGNOSTICS_TOPIC', 'RESULTS_NODE_NAME', 'result_messages',
            'diagnostics_msg', 'write_report']
@@ -62,12 +63,13 @@ def result_messages(count: CountResult, cloud: FruitPointCloud, frame_id: str, s
     }
 
 
-def diagnostics_msg(name: str, hardware_id: str, level: str, message: str, values: dict[str, Any],
+def diagnostics_msg(name: str, hardware_id: str, level: DiagnosticLevel, message: str, values: dict[str, Any],
                     stamp_ns: int) -> Any:
-    """``diagnostic_msgs/DiagnosticArray`` with one status (level ``ok`` / ``warn`` / ``error``)."""
+    """``diagnostic_msgs/DiagnosticArray`` with one status; ``values`` become key-value pairs (``str`` of each)."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
     from std_msgs.msg import Header
-    levels = {'ok': DiagnosticStatus.OK, 'warn': DiagnosticStatus.WARN, 'error': DiagnosticStatus.ERROR}
+    levels = {DiagnosticLevel.OK: DiagnosticStatus.OK, DiagnosticLevel.WARN: DiagnosticStatus.WARN,
+              DiagnosticLevel.ERROR: DiagnosticStatus.ERROR}
     status = DiagnosticStatus(level=levels[level], name=name, message=message, hardware_id=hardware_id,
                               values=[KeyValue(key=str(k), value=str(v)) for k, v in values.items()])
     return DiagnosticArray(header=Header(stamp=time_msg_from_ns(stamp_ns)), status=[status])

@@ -22,6 +22,7 @@ from fruitnerfpp_ros.cli.main import main as cli_main
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.nodes.bag_replay import collect_keyframes, replay_bag
 from fruitnerfpp_ros.nodes.conversions import points_from_cloud_msg
+from fruitnerfpp_ros.nodes.log import LogLevel
 from fruitnerfpp_ros.nodes.params import settings_from_parameters
 from fruitnerfpp_ros.nodes.results import OUTPUT_TOPICS
 from test.accuracy_targets import expect_accuracy
@@ -40,7 +41,7 @@ def bags(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
                                       bag_storage=storage).bag_path for storage in ('mcap', 'sqlite3')}
 
 
-def _quiet(level: str, message: str) -> None:
+def _quiet(level: LogLevel, message: str) -> None:
     pass
 
 

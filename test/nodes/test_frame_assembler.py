@@ -11,7 +11,8 @@ from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.geometry import opengl_from_optical, quaternion_from_transform
 from fruitnerfpp_ros.nodes.conversions import pose_msg_from_transform
-from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler, ThrottledLog
+from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler
+from fruitnerfpp_ros.nodes.log import LogLevel, ThrottledLog
 from fruitnerfpp_ros.nodes.params import settings_from_parameters
 from test.nodes import bag_factory as bf
 
@@ -20,7 +21,7 @@ ROLE = {'/camera/image_raw': 'image', '/camera/camera_info': 'camera_info', '/ca
 
 
 class Logs(list):
-    def __call__(self, level: str, message: str) -> None:
+    def __call__(self, level: LogLevel, message: str) -> None:
         self.append((level, message))
 
 
@@ -31,7 +32,7 @@ def test_frames_wait_for_late_camera_info(tmp_path: Path) -> None:
     for topic, _, _, msg in msgs:
         if topic != '/camera/camera_info':
             assembler.on_message(ROLE[topic], msg)
-    assert len(assembler.store) == 0 and assembler.status()['waiting'] == 4
+    assert len(assembler.store) == 0 and assembler.status().waiting == 4
     assembler.on_message('camera_info', msgs[0][3])
     assert len(assembler.store) == 4
 
@@ -84,9 +85,9 @@ def test_throttled_log_keeps_kinds_apart_and_counts_suppressed() -> None:
     logs = Logs()
     log = ThrottledLog(logs, period_s=1000.0)
     for _ in range(5):
-        log('warn', 'a', 'first kind')
-    log('warn', 'b', 'second kind')
-    assert logs == [('warn', 'first kind'), ('warn', 'second kind')]
+        log(LogLevel.WARN, 'a', 'first kind')
+    log(LogLevel.ERROR, 'b', 'second kind')
+    assert logs == [(LogLevel.WARN, 'first kind'), (LogLevel.ERROR, 'second kind')]
     log.period_s = 0.0
-    log('warn', 'a', 'first kind')
-    assert logs[-1] == ('warn', 'first kind (4 similar messages suppressed)')
+    log(LogLevel.WARN, 'a', 'first kind')
+    assert logs[-1] == (LogLevel.WARN, 'first kind (4 similar messages suppressed)')

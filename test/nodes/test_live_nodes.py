@@ -23,6 +23,7 @@ from std_srvs.srv import Trigger
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.nodes.conversions import points_from_cloud_msg
 from fruitnerfpp_ros.nodes.fruit_counter import LATCHED_QOS, FruitCounterNode
+from fruitnerfpp_ros.nodes.status import NodeState
 from test.nodes import bag_factory as bf
 from test.accuracy_targets import expect_accuracy
 
@@ -125,7 +126,7 @@ def test_bad_live_input_is_survived_and_services_answer(graph: Graph, tmp_path: 
     wait_for(lambda: sum(counter.assembler.received.values()) >= len(msgs) - 2, 10, 'messages to be processed')
     wait_for(lambda: len(counter.store) >= 4, 10, 'keyframes 5..8')
     time.sleep(0.3)
-    errors = counter.assembler.status()['errors']
+    errors = counter.assembler.status().errors
     assert errors.get('image', 0) + errors.get('frame', 0) >= 2 and errors.get('pose', 0) == 1
     stamps = [f.stamp_ns for f in read_transforms(tmp_path / 'run' / 'keyframes').frames]
     assert bf.START_NS + 5 * bf.PERIOD_NS in stamps and bf.START_NS + 2 * bf.PERIOD_NS not in stamps
@@ -248,9 +249,10 @@ def _count_through_the_live_graph(graph: Graph, tmp_path: Path, tiny_apple_datas
     assert not again.success and 'already running' in again.message
     # the node publishes the results, then marks the run done: wait for both (tiny preset: ~2 min alone on 2 cores,
     # far longer on a loaded machine)
-    wait_for(lambda: ('fruit_count' in received and 'fruit_cloud' in received and counter.state == 'done')
-             or counter.state == 'error', 2400, 'the count')
-    assert counter.state == 'done', counter.last_error
+    wait_for(lambda: ('fruit_count' in received and 'fruit_cloud' in received
+                      and counter.run_status.state is NodeState.DONE)
+             or counter.run_status.state is NodeState.ERROR, 2400, 'the count')
+    assert counter.run_status.state is NodeState.DONE, counter.run_status.last_error
     count = received['fruit_count'].data
     points = points_from_cloud_msg(received['fruit_cloud'])
     ids = np.unique(points['instance_id'])

@@ -13,6 +13,7 @@ from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.errors import ConfigError, SegmentationError
 from fruitnerfpp_ros.nodes.conversions import image_msg_from_array
 from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler
+from fruitnerfpp_ros.nodes.log import LogLevel
 from fruitnerfpp_ros.nodes.mask_source import (SegmenterMaskSource, TopicMaskSource, mask_source_from_settings,
                                                segmenter_config_from_settings)
 from fruitnerfpp_ros.nodes.params import settings_from_parameters
@@ -22,7 +23,7 @@ ROLE = {'/camera/image_raw': 'image', '/camera/camera_info': 'camera_info', '/ca
 
 
 class Logs(list):
-    def __call__(self, level: str, message: str) -> None:
+    def __call__(self, level: LogLevel, message: str) -> None:
         self.append((level, message))
 
 
