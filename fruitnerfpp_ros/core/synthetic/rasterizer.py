@@ -1,11 +1,16 @@
 """Vectorised renderer of the procedural tree: per-primitive screen-space rasterisation with a z-buffer.
 
-For each view, every primitive's 3D bounding box is projected to a pixel rectangle; all (primitive, pixel)
-pairs inside those rectangles are enumerated at once (``repeat_interleave``), the exact ray/primitive
-intersection is computed for each pair, and a z-buffer (``scatter_reduce`` amin on a packed depth+index key)
-keeps the nearest surface per pixel. The ground plane z = 0 and the sky fill the rest. Shading: Lambertian sun
-+ ambient, a crown-depth darkening, and procedural value-noise textures anchored to the world (multi-view
-consistent). Runs on CPU or CUDA (torch), float32; deterministic on a given device.
+For each view, every primitive's 3D bounding hull is projected (pinhole) to a rectangle of the undistorted image
+plane; all (primitive, pixel) pairs whose pixel ray falls inside those rectangles are enumerated at once
+(``repeat_interleave``), the exact ray/primitive intersection is computed for each pair (``intersect.py``), and
+a z-buffer (``scatter_reduce`` amin on a packed depth+index key) keeps the nearest surface per pixel. The ground
+plane z = 0 and the sky fill the rest; ``shading.py`` colours the winners. Runs on CPU or CUDA (torch), float32;
+deterministic on a given device.
+
+Without lens distortion a pixel's ray falls inside a rectangle exactly when the pixel does, so the pairs are
+the pixels of the rectangle. With distortion (``lens.py``) each pixel has its own ray through its distorted
+centre: pixels are binned by where their ray meets the undistorted image plane (unit bins), and the pairs of a
+rectangle are the pixels of its bins (:class:`_PixelBins`), so image and instance mask come from the same rays.
 """
 
 from __future__ import annotations
@@ -18,16 +23,19 @@ import torch
 
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics
 from fruitnerfpp_ros.core.geometry import T_OPENGL_OPTICAL
-from fruitnerfpp_ros.core.synthetic.scene import Scene
+from fruitnerfpp_ros.core.synthetic.appearance import DEFAULT_APPEARANCE, Appearance
+from fruitnerfpp_ros.core.synthetic.intersect import NEAR_M, SceneTensors
+from fruitnerfpp_ros.core.synthetic.lens import is_distorted, undistorted_pixel_grid
+from fruitnerfpp_ros.core.synthetic.primitives import Scene
+from fruitnerfpp_ros.core.synthetic.shading import Shader, value_noise
+from fruitnerfpp_ros.errors import SynthError
 
 __all__ = ['ViewRender', 'Renderer', 'value_noise']
 
-_NEAR = 1e-3
 _DEPTH_SCALE = float(2 ** 16)   # depth quantisation of the z-buffer key (1/65536 m)
 _INDEX_BITS = 24
 _INDEX_MASK = (1 << _INDEX_BITS) - 1
 _MAX_PAIRS = 1 << 21            # (primitive, pixel) pairs per chunk
-_SUN = np.array([0.35, -0.45, 0.82]) / np.linalg.norm([0.35, -0.45, 0.82])
 
 
 class ViewRender(NamedTuple):
@@ -44,40 +52,6 @@ class ViewRender(NamedTuple):
     depth: np.ndarray
 
 
-def _hash(ix: torch.Tensor, seed: int) -> torch.Tensor:
-    """Integer hash of int64 lattice coordinates [..., D] to floats in [0, 1) (identical on CPU and CUDA)."""
-    primes = (73856093, 19349663, 83492791)
-    h = torch.full(ix.shape[:-1], seed * 2654435761 % (1 << 32), dtype=torch.int64, device=ix.device)
-    for k in range(ix.shape[-1]):
-        h = (h ^ ((ix[..., k] * primes[k]) & 0xFFFFFFFF)) & 0xFFFFFFFF
-        h = ((h ^ (h >> 15)) * 0x2C1B3C6D) & 0xFFFFFFFF
-        h = ((h ^ (h >> 12)) * 0x297A2D39) & 0xFFFFFFFF
-        h = h ^ (h >> 15)
-    return (h & 0xFFFFFF).to(torch.float32) / float(1 << 24)
-
-
-def value_noise(x: torch.Tensor, seed: int = 0, octaves: int = 1) -> torch.Tensor:
-    """Smooth value noise in [0, 1] at points ``x`` [P, D] (D = 2 or 3), summed over ``octaves`` (fBm)."""
-    total = torch.zeros(x.shape[0], dtype=torch.float32, device=x.device)
-    weight_sum = 0.0
-    for octave in range(octaves):
-        p = x * (2.0 ** octave)
-        base = torch.floor(p)
-        f = p - base
-        f = f * f * (3.0 - 2.0 * f)
-        ib = base.to(torch.int64)
-        value = torch.zeros_like(total)
-        d = x.shape[1]
-        for corner in range(1 << d):
-            offset = torch.tensor([(corner >> k) & 1 for k in range(d)], device=x.device)
-            w = torch.prod(torch.where(offset.bool(), f, 1.0 - f), dim=1)
-            value = value + w * _hash(ib + offset, seed + octave)
-        amp = 0.5 ** octave
-        total = total + amp * value
-        weight_sum += amp
-    return total / weight_sum
-
-
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """[N, 8, 3] corners of the axis-aligned boxes [lo, hi] ([N, 3] each)."""
     box = np.stack([lo, hi], axis=1)
@@ -90,37 +64,55 @@ class _Rays(NamedTuple):
     dirs: torch.Tensor     # [P, 3], optical z component scaled to 1 (t = optical depth)
 
 
+class _PixelBins(NamedTuple):
+    """Pixels of a distorted image binned by where their rays meet the undistorted image plane.
+
+    Bin (bx, by) holds the pixels whose undistorted position (fl_x * x + cx, fl_y * y + cy) lies in
+    [u0 + bx, u0 + bx + 1) x [v0 + by, v0 + by + 1); ``order[ptr[b]:ptr[b + 1]]`` are the pixels of bin
+    b = by * width + bx (row-major pixel indices).
+    """
+
+    u0: int
+    v0: int
+    width: int
+    height: int
+    ptr: np.ndarray       # [width * height + 1] int64
+    order: torch.Tensor   # [H * W] int64
+
+
+def _pixel_bins(grid: np.ndarray, K: CameraIntrinsics, device: torch.device) -> _PixelBins:
+    u = np.floor(K.fl_x * grid[:, 0] + K.cx).astype(np.int64)
+    v = np.floor(K.fl_y * grid[:, 1] + K.cy).astype(np.int64)
+    u0, v0 = int(u.min()), int(v.min())
+    width, height = int(u.max()) - u0 + 1, int(v.max()) - v0 + 1
+    bin_of = (v - v0) * width + (u - u0)
+    order = np.argsort(bin_of, kind='stable')
+    ptr = np.searchsorted(bin_of[order], np.arange(width * height + 1))
+    return _PixelBins(u0, v0, width, height, ptr.astype(np.int64), torch.as_tensor(order, device=device))
+
+
 class Renderer:
     """Renders views of one :class:`Scene` on a torch device.
 
     Args:
         scene: the procedural tree.
         device: torch device (``resolve_device`` it first).
+        appearance: lighting, sky and ground (default: the fixed look of every default dataset).
+
+    Raises:
+        SynthError: the scene has more primitives than the z-buffer key can index.
     """
 
-    def __init__(self, scene: Scene, device: torch.device) -> None:
+    def __init__(self, scene: Scene, device: torch.device, appearance: Appearance = DEFAULT_APPEARANCE) -> None:
         self.scene = scene
         self.device = device
-
-        def t(a: np.ndarray, dtype: torch.dtype = torch.float32) -> torch.Tensor:
-            return torch.as_tensor(np.ascontiguousarray(a), dtype=dtype, device=device)
-
+        self.tensors = SceneTensors(scene, device)
+        crown = torch.as_tensor(np.stack([scene.crown_center, scene.crown_radii]), dtype=torch.float32, device=device)
+        self.shader = Shader(self.tensors, crown[0], crown[1], appearance)
+        if self.shader.sky_index > _INDEX_MASK:
+            raise SynthError(f'too many primitives for the z-buffer key ({self.tensors.total} > {_INDEX_MASK - 1}); '
+                             'use fewer fruits or a smaller leaf_scale')
         e, lv, c = scene.ellipsoids, scene.leaves, scene.cylinders
-        self.e_center, self.e_rot, self.e_radii = t(e.center), t(e.rotation), t(e.radii)
-        self.e_albedo, self.e_blush, self.e_amount = t(e.albedo), t(e.blush), t(e.blush_amount)
-        self.e_instance = t(e.instance, torch.int64)
-        self.l_center, self.l_u, self.l_v, self.l_n = t(lv.center), t(lv.axis_u), t(lv.axis_v), t(lv.normal)
-        self.l_half, self.l_albedo = t(lv.half_size), t(lv.albedo)
-        u_a, v_b = lv.axis_u / lv.half_size[:, :1], lv.axis_v / lv.half_size[:, 1:]
-        self.l_plane = t(np.concatenate([lv.normal, np.sum(lv.normal * lv.center, 1, keepdims=True),
-                                         u_a, np.sum(u_a * lv.center, 1, keepdims=True),
-                                         v_b, np.sum(v_b * lv.center, 1, keepdims=True)], axis=1).reshape(-1, 12))
-        self.c_p0, self.c_p1, self.c_r, self.c_albedo = t(c.p0), t(c.p1), t(c.radius), t(c.albedo)
-        self.n_e, self.n_l, self.n_c = len(e.center), len(lv.center), len(c.p0)
-        self.ground_index = self.n_e + self.n_l + self.n_c
-        self.sky_index = self.ground_index + 1
-        if self.sky_index > _INDEX_MASK:
-            raise ValueError('too many primitives for the z-buffer key')
         # Points whose convex hull holds each primitive [N, C, 3] (float64), projected to find its pixels:
         # corners of the axis-aligned box (ellipsoids, cylinders), corners of the leaf's own rectangle (leaves).
         half_e = np.sqrt(np.einsum('nij,nj->ni', e.rotation ** 2, e.radii ** 2))
@@ -131,83 +123,54 @@ class Renderer:
             np.stack([lv.center + su * lu + sv * lv_ for su in (-1, 1) for sv in (-1, 1)], axis=1),
             _box_corners(np.minimum(c.p0, c.p1) - r_c, np.maximum(c.p0, c.p1) + r_c),
         ]
-        self.offsets = [0, self.n_e, self.n_e + self.n_l]
-        self.crown_center = t(scene.crown_center)
-        self.crown_radii = t(scene.crown_radii)
-        self.sun = t(_SUN)
+        self._lens: tuple[CameraIntrinsics, torch.Tensor, _PixelBins] | None = None
 
-    # ------------------------------------------------------------------ intersections (pairs of ray, primitive)
-    def _hit_ellipsoid(self, o: torch.Tensor, d: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-        R, r = self.e_rot[idx], self.e_radii[idx]
-        ol = torch.einsum('pji,pj->pi', R, o - self.e_center[idx]) / r
-        dl = torch.einsum('pji,pj->pi', R, d) / r
-        a = (dl * dl).sum(1)
-        b = (ol * dl).sum(1)
-        c = (ol * ol).sum(1) - 1.0
-        disc = b * b - a * c
-        t = (-b - torch.sqrt(torch.clamp(disc, min=0.0))) / a
-        return torch.where((disc >= 0) & (t > _NEAR), t, torch.inf)
+    # ------------------------------------------------------------------ rays and pixel sets
+    def _lens_of(self, K: CameraIntrinsics) -> tuple[torch.Tensor, _PixelBins]:
+        """Undistorted ray grid [P, 2] and pixel bins of a distorted camera (cached for the last ``K``)."""
+        if self._lens is None or self._lens[0] != K:
+            grid = undistorted_pixel_grid(K)
+            self._lens = (K, torch.as_tensor(grid, dtype=torch.float32, device=self.device),
+                          _pixel_bins(grid, K, self.device))
+        return self._lens[1], self._lens[2]
 
-    def _hit_leaf(self, o: torch.Tensor, d: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-        # One gather of the packed leaf plane [n, n.c, u/a, u.c/a, v/b, v.c/b] (12 floats per leaf).
-        q = self.l_plane[idx]
-        n = q[:, 0:3]
-        denom = (d * n).sum(1)
-        t = (q[:, 3] - (o * n).sum(-1)) / torch.where(denom.abs() < 1e-12, torch.full_like(denom, 1e-12), denom)
-        p = o + t[:, None] * d
-        x = (p * q[:, 4:7]).sum(1) - q[:, 7]
-        y = (p * q[:, 8:11]).sum(1) - q[:, 11]
-        inside = (x.abs() <= 1.0) & (y.abs() <= 1.0 - x * x)
-        return torch.where(inside & (t > _NEAR), t, torch.inf)
-
-    def _hit_cylinder(self, o: torch.Tensor, d: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-        p0, p1, r = self.c_p0[idx], self.c_p1[idx], self.c_r[idx]
-        axis = p1 - p0
-        length = torch.linalg.norm(axis, dim=1)
-        axis = axis / length[:, None]
-        oc = o - p0
-        d_perp = d - (d * axis).sum(1, keepdim=True) * axis
-        oc_perp = oc - (oc * axis).sum(1, keepdim=True) * axis
-        a = (d_perp * d_perp).sum(1)
-        b = (d_perp * oc_perp).sum(1)
-        c = (oc_perp * oc_perp).sum(1) - r * r
-        disc = b * b - a * c
-        t = (-b - torch.sqrt(torch.clamp(disc, min=0.0))) / torch.clamp(a, min=1e-20)
-        s = ((oc + t[:, None] * d) * axis).sum(1)
-        ok = (disc >= 0) & (a > 1e-20) & (t > _NEAR) & (s >= 0) & (s <= length)
-        return torch.where(ok, t, torch.inf)
-
-    def _hit(self, kind: int, o: torch.Tensor, d: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-        return (self._hit_ellipsoid, self._hit_leaf, self._hit_cylinder)[kind](o, d, idx)
-
-    # ------------------------------------------------------------------ rays
     def _pixel_rays(self, T_world_camera: np.ndarray, K: CameraIntrinsics) -> tuple[_Rays, np.ndarray]:
         T_world_optical = np.asarray(T_world_camera, dtype=np.float64) @ T_OPENGL_OPTICAL
         R = torch.as_tensor(T_world_optical[:3, :3], dtype=torch.float32, device=self.device)
         origin = torch.as_tensor(T_world_optical[:3, 3], dtype=torch.float32, device=self.device)
+        if is_distorted(K):
+            grid, _ = self._lens_of(K)
+            d_opt = torch.cat([grid, torch.ones(len(grid), 1, device=self.device)], dim=1)
+            return _Rays(origin, d_opt @ R.T), T_world_optical
         v, u = torch.meshgrid(torch.arange(K.h, device=self.device, dtype=torch.float32),
                               torch.arange(K.w, device=self.device, dtype=torch.float32), indexing='ij')
         d_opt = torch.stack([(u.reshape(-1) + 0.5 - K.cx) / K.fl_x, (v.reshape(-1) + 0.5 - K.cy) / K.fl_y,
                              torch.ones(K.w * K.h, device=self.device)], dim=1)
         return _Rays(origin, d_opt @ R.T), T_world_optical
 
-    def _pixel_boxes(self, kind: int, T_world_optical: np.ndarray, K: CameraIntrinsics) -> np.ndarray:
-        """[N, 4] inclusive pixel rectangles (x0, y0, x1, y1) holding primitive ``kind``'s projection."""
+    def _projected_extent(self, kind: int, T_world_optical: np.ndarray, K: CameraIntrinsics
+                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Pinhole projections (u [N, C], v [N, C], undistorted pixel coordinates) of primitive ``kind``'s hull
+        corners, with masks (all corners in front [N], some corners in front [N])."""
         corners = self.hulls[kind]
-        if len(corners) == 0:
-            return np.zeros((0, 4), dtype=np.int64)
         T_opt_world = np.linalg.inv(T_world_optical)
         p = corners @ T_opt_world[:3, :3].T + T_opt_world[:3, 3]
         z = p[..., 2]
-        in_front = z > _NEAR
+        in_front = z > NEAR_M
         zc = np.where(in_front, z, 1.0)
         u = K.fl_x * p[..., 0] / zc + K.cx
         v = K.fl_y * p[..., 1] / zc + K.cy
+        return u, v, in_front.all(1), in_front.any(1)
+
+    def _pixel_boxes(self, kind: int, T_world_optical: np.ndarray, K: CameraIntrinsics) -> np.ndarray:
+        """[N, 4] inclusive pixel rectangles (x0, y0, x1, y1) holding primitive ``kind``'s projection."""
+        if len(self.hulls[kind]) == 0:
+            return np.zeros((0, 4), dtype=np.int64)
+        u, v, all_front, any_front = self._projected_extent(kind, T_world_optical, K)
         rect = np.stack([np.ceil(u.min(1) - 0.5 - 1e-3), np.ceil(v.min(1) - 0.5 - 1e-3),
                          np.floor(u.max(1) - 0.5 + 1e-3), np.floor(v.max(1) - 0.5 + 1e-3)], axis=1)
-        partial = ~in_front.all(1) & in_front.any(1)
-        rect[partial] = [0, 0, K.w - 1, K.h - 1]
-        rect[~in_front.any(1)] = [1, 1, 0, 0]  # empty
+        rect[~all_front & any_front] = [0, 0, K.w - 1, K.h - 1]
+        rect[~any_front] = [1, 1, 0, 0]  # empty
         rect[:, [0, 2]] = np.clip(rect[:, [0, 2]], -1, K.w)
         rect[:, [1, 3]] = np.clip(rect[:, [1, 3]], -1, K.h)
         rect[:, 0] = np.maximum(rect[:, 0], 0)
@@ -216,9 +179,30 @@ class Renderer:
         rect[:, 3] = np.minimum(rect[:, 3], K.h - 1)
         return rect.astype(np.int64)
 
+    def _bin_boxes(self, kind: int, T_world_optical: np.ndarray, K: CameraIntrinsics, bins: _PixelBins
+                   ) -> np.ndarray:
+        """[N, 4] inclusive bin rectangles (bx0, by0, bx1, by1) of :class:`_PixelBins` holding ``kind``'s
+        projection (distorted cameras)."""
+        if len(self.hulls[kind]) == 0:
+            return np.zeros((0, 4), dtype=np.int64)
+        u, v, all_front, any_front = self._projected_extent(kind, T_world_optical, K)
+        rect = np.stack([np.floor(u.min(1) - 1e-3) - bins.u0, np.floor(v.min(1) - 1e-3) - bins.v0,
+                         np.floor(u.max(1) + 1e-3) - bins.u0, np.floor(v.max(1) + 1e-3) - bins.v0], axis=1)
+        rect[~all_front & any_front] = [0, 0, bins.width - 1, bins.height - 1]
+        rect[~any_front] = [1, 1, 0, 0]  # empty
+        size = np.array([bins.width, bins.height])
+        rect[:, :2] = np.clip(rect[:, :2], 0, size)       # a rectangle outside the bins ends up empty
+        rect[:, 2:] = np.clip(rect[:, 2:], -1, size - 1)
+        return rect.astype(np.int64)
+
     # ------------------------------------------------------------------ rendering
     def render(self, T_world_camera: np.ndarray, K: CameraIntrinsics) -> ViewRender:
-        """Render one view: camera-to-world pose (OpenGL axes, 4x4) and intrinsics (top-left-corner cx, cy)."""
+        """Render one view: camera-to-world pose (OpenGL axes, 4x4) and intrinsics (top-left-corner cx, cy; the
+        image is distorted by ``K.distortion``, OpenCV's plumb_bob k1, k2, p1, p2, k3, when given).
+
+        Raises:
+            SynthError: the lens distortion cannot be inverted over the image.
+        """
         with self._one_cpu_thread(), torch.no_grad():
             return self._render(T_world_camera, K)
 
@@ -238,156 +222,87 @@ class Renderer:
     def _render(self, T_world_camera: np.ndarray, K: CameraIntrinsics) -> ViewRender:
         rays, T_world_optical = self._pixel_rays(T_world_camera, K)
         o, dirs = rays
-        n_pix = K.w * K.h
         # Ground plane (z = 0) and sky initialise the z-buffer.
         t_ground = torch.where(dirs[:, 2] < -1e-9, -o[2] / torch.clamp(dirs[:, 2], max=-1e-9), torch.inf)
         sky_key = torch.iinfo(torch.int64).max
         keys = torch.where(torch.isfinite(t_ground),
-                           (t_ground * _DEPTH_SCALE).to(torch.int64) * (1 << _INDEX_BITS) + self.ground_index,
+                           (t_ground * _DEPTH_SCALE).to(torch.int64) * (1 << _INDEX_BITS) + self.shader.ground_index,
                            torch.full_like(t_ground, 0, dtype=torch.int64) + sky_key)
         for kind in range(3):
-            rect = self._pixel_boxes(kind, T_world_optical, K)
-            w = np.maximum(rect[:, 2] - rect[:, 0] + 1, 0)
-            h = np.maximum(rect[:, 3] - rect[:, 1] + 1, 0)
-            area = w * h
-            live = np.flatnonzero(area > 0)
-            if len(live) == 0:
-                continue
-            cum = np.cumsum(area[live])
-            start = 0
-            while start < len(live):
-                base = cum[start - 1] if start else 0
-                stop = max(start + 1, int(np.searchsorted(cum, base + _MAX_PAIRS, side='right')))
-                sel = live[start:stop]
-                self._rasterise_chunk(kind, sel, rect[sel], area[sel], w[sel], rays, K.w, keys)
-                start = stop
+            if is_distorted(K):
+                self._rasterise_binned(kind, T_world_optical, K, rays, keys)
+            else:
+                self._rasterise_pinhole(kind, T_world_optical, K, rays, keys)
         winner = keys & _INDEX_MASK
-        winner = torch.where(keys == sky_key, torch.full_like(winner, self.sky_index), winner)
-        rgb, instance, depth = self._shade(winner, rays, t_ground, n_pix)
+        winner = torch.where(keys == sky_key, torch.full_like(winner, self.shader.sky_index), winner)
+        rgb, instance, depth = self.shader.shade(winner, o, dirs, t_ground)
         return ViewRender(rgb.reshape(K.h, K.w, 3).cpu().numpy(), instance.reshape(K.h, K.w).cpu().numpy(),
                           depth.reshape(K.h, K.w).cpu().numpy())
 
-    def _rasterise_chunk(self, kind: int, sel: np.ndarray, rect: np.ndarray, area: np.ndarray, w: np.ndarray,
-                         rays: _Rays, width: int, keys: torch.Tensor) -> None:
-        dev = self.device
-        # Per primitive: first pixel index and rectangle width; per pair: offset k inside the rectangle (int32).
-        counts = torch.as_tensor(area, device=dev)
-        prim_local = torch.repeat_interleave(torch.arange(len(sel), dtype=torch.int32, device=dev), counts)
-        start = (np.cumsum(area) - area).astype(np.int32)
-        first_pix = (rect[:, 1] * width + rect[:, 0]).astype(np.int32)
-        per_prim = torch.as_tensor(np.stack([start, first_pix, w.astype(np.int32)], axis=1), device=dev)[prim_local]
-        k = torch.arange(int(area.sum()), dtype=torch.int32, device=dev) - per_prim[:, 0]
-        row = torch.div(k, per_prim[:, 2], rounding_mode='floor')
-        pix = (per_prim[:, 1] + row * (width - per_prim[:, 2]) + k).long()
-        idx = torch.as_tensor(sel, device=dev)[prim_local]
-        t = self._hit(kind, rays.origin, rays.dirs[pix], idx)
+    def _rasterise_pinhole(self, kind: int, T_world_optical: np.ndarray, K: CameraIntrinsics, rays: _Rays,
+                           keys: torch.Tensor) -> None:
+        rect = self._pixel_boxes(kind, T_world_optical, K)
+        w = np.maximum(rect[:, 2] - rect[:, 0] + 1, 0)
+        h = np.maximum(rect[:, 3] - rect[:, 1] + 1, 0)
+        area = w * h
+        for sel in self._chunks(area):
+            dev = self.device
+            r, a, ww = rect[sel], area[sel], w[sel]
+            # Per primitive: first pixel index and rectangle width; per pair: offset k inside the rectangle (int32).
+            prim_local = torch.repeat_interleave(torch.arange(len(sel), dtype=torch.int32, device=dev),
+                                                 torch.as_tensor(a, device=dev))
+            start = (np.cumsum(a) - a).astype(np.int32)
+            first_pix = (r[:, 1] * K.w + r[:, 0]).astype(np.int32)
+            per_prim = torch.as_tensor(np.stack([start, first_pix, ww.astype(np.int32)], axis=1),
+                                       device=dev)[prim_local]
+            k = torch.arange(int(a.sum()), dtype=torch.int32, device=dev) - per_prim[:, 0]
+            row = torch.div(k, per_prim[:, 2], rounding_mode='floor')
+            pix = (per_prim[:, 1] + row * (K.w - per_prim[:, 2]) + k).long()
+            self._zbuffer(kind, torch.as_tensor(sel, device=dev)[prim_local], pix, rays, keys)
+
+    def _rasterise_binned(self, kind: int, T_world_optical: np.ndarray, K: CameraIntrinsics, rays: _Rays,
+                          keys: torch.Tensor) -> None:
+        _, bins = self._lens_of(K)
+        rect = self._bin_boxes(kind, T_world_optical, K, bins)
+        # One segment of the bin-sorted pixel list per primitive and bin row.
+        rows = np.where(rect[:, 0] <= rect[:, 2], np.maximum(rect[:, 3] - rect[:, 1] + 1, 0), 0)
+        seg_prim = np.repeat(np.arange(len(rect)), rows)
+        seg_row = rect[seg_prim, 1] + np.arange(len(seg_prim)) - np.repeat(np.cumsum(rows) - rows, rows)
+        seg_lo = bins.ptr[seg_row * bins.width + rect[seg_prim, 0]]
+        seg_len = bins.ptr[seg_row * bins.width + rect[seg_prim, 2] + 1] - seg_lo
+        pairs = np.bincount(seg_prim, weights=seg_len, minlength=len(rect)).astype(np.int64)
+        seg_start = np.searchsorted(seg_prim, np.arange(len(rect) + 1))
+        for sel in self._chunks(pairs):
+            dev = self.device
+            segs = np.arange(seg_start[sel[0]], seg_start[sel[-1] + 1])  # primitives between have no pairs
+            lengths = torch.as_tensor(seg_len[segs], device=dev)
+            seg_of_pair = torch.repeat_interleave(torch.arange(len(segs), device=dev), lengths)
+            first = torch.as_tensor(seg_lo[segs], device=dev)
+            offset = torch.arange(int(lengths.sum()), device=dev) - (torch.cumsum(lengths, 0) - lengths)[seg_of_pair]
+            pix = bins.order[first[seg_of_pair] + offset]
+            idx = torch.as_tensor(seg_prim[segs], device=dev)[seg_of_pair]
+            self._zbuffer(kind, idx, pix, rays, keys)
+
+    @staticmethod
+    def _chunks(pairs: np.ndarray) -> Iterator[np.ndarray]:
+        """Indices of the primitives with pairs, in groups of about ``_MAX_PAIRS`` pairs."""
+        live = np.flatnonzero(pairs > 0)
+        cum = np.cumsum(pairs[live])
+        start = 0
+        while start < len(live):
+            base = cum[start - 1] if start else 0
+            stop = max(start + 1, int(np.searchsorted(cum, base + _MAX_PAIRS, side='right')))
+            yield live[start:stop]
+            start = stop
+
+    def _zbuffer(self, kind: int, idx: torch.Tensor, pix: torch.Tensor, rays: _Rays, keys: torch.Tensor) -> None:
+        """Intersect the (primitive ``idx``, pixel ``pix``) pairs and keep the nearest hit per pixel in ``keys``."""
+        t = self.tensors.hit(kind, rays.origin, rays.dirs[pix], idx)
         hit = torch.isfinite(t)
         if not bool(hit.any()):
             return
-        key = (t[hit] * _DEPTH_SCALE).to(torch.int64) * (1 << _INDEX_BITS) + (idx[hit] + self.offsets[kind])
+        key = (t[hit] * _DEPTH_SCALE).to(torch.int64) * (1 << _INDEX_BITS) + (idx[hit] + self.tensors.offsets[kind])
         keys.scatter_reduce_(0, pix[hit], key, reduce='amin', include_self=True)
-
-    def _shade(self, winner: torch.Tensor, rays: _Rays, t_ground: torch.Tensor,
-               n_pix: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        dev = self.device
-        o, dirs = rays
-        rgb = torch.zeros((n_pix, 3), dtype=torch.float32, device=dev)
-        depth = torch.full((n_pix,), torch.inf, dtype=torch.float32, device=dev)
-        instance = torch.zeros(n_pix, dtype=torch.int64, device=dev)
-        # Sky: a gradient with the ray's elevation.
-        sky = winner == self.sky_index
-        if bool(sky.any()):
-            elev = torch.clamp(dirs[sky, 2] / torch.linalg.norm(dirs[sky], dim=1), 0.0, 1.0)[:, None]
-            rgb[sky] = (1 - elev) * torch.tensor([0.80, 0.87, 0.95], device=dev) \
-                + elev * torch.tensor([0.45, 0.62, 0.88], device=dev)
-        # Ground: grass/soil texture, darker under the crown.
-        ground = winner == self.ground_index
-        if bool(ground.any()):
-            t = t_ground[ground]
-            p = o + t[:, None] * dirs[ground]
-            xy = p[:, :2]
-            n1 = value_noise(xy * 3.0, seed=11, octaves=3)
-            n2 = value_noise(xy * 40.0, seed=12, octaves=2)
-            grass = torch.tensor([0.30, 0.42, 0.16], device=dev)
-            soil = torch.tensor([0.42, 0.34, 0.24], device=dev)
-            mix = torch.clamp((n1 - 0.35) * 2.5, 0.0, 1.0)[:, None]
-            albedo = (mix * grass + (1 - mix) * soil) * (0.75 + 0.5 * n2)[:, None]
-            shadow_center = self.crown_center[:2] - self.sun[:2] / self.sun[2] * self.crown_center[2]
-            r2 = ((xy - shadow_center) ** 2).sum(1) / (self.crown_radii[0] ** 2)
-            shade = 0.38 + 0.62 * self.sun[2] * (1.0 - 0.6 * torch.exp(-r2 * r2))
-            rgb[ground] = albedo * shade[:, None]
-            depth[ground] = t
-        for kind in range(3):
-            lo = self.offsets[kind]
-            hi = lo + (self.n_e, self.n_l, self.n_c)[kind]
-            mask = (winner >= lo) & (winner < hi)
-            if not bool(mask.any()):
-                continue
-            idx = winner[mask] - lo
-            d = dirs[mask]
-            t = self._hit(kind, o, d, idx)
-            p = o + t[:, None] * d
-            depth[mask] = t
-            if kind == 0:
-                albedo, normal, inst = self._ellipsoid_surface(p, idx)
-                instance[mask] = inst
-            elif kind == 1:
-                albedo, normal = self._leaf_surface(p, idx)
-            else:
-                albedo, normal = self._cylinder_surface(p, idx)
-            # Face the camera (two-sided leaves), Lambert + ambient, darker deep inside the crown.
-            normal = torch.where(((normal * d).sum(1, keepdim=True) > 0), -normal, normal)
-            lambert = torch.clamp((normal * self.sun).sum(1), min=0.0)
-            rel = (p - self.crown_center) / self.crown_radii
-            radial = torch.linalg.norm(rel, dim=1)
-            ao = torch.clamp(0.45 + 0.55 * radial, 0.45, 1.0)
-            rgb[mask] = albedo * ((0.38 + 0.62 * lambert) * ao)[:, None]
-        rgb8 = torch.clamp(rgb * 255.0 + 0.5, 0.0, 255.0).to(torch.uint8)
-        return rgb8, instance.to(torch.int32), depth
-
-    def _ellipsoid_surface(self, p: torch.Tensor, idx: torch.Tensor
-                           ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        R, r = self.e_rot[idx], self.e_radii[idx]
-        local = torch.einsum('pji,pj->pi', R, p - self.e_center[idx])
-        normal = torch.einsum('pij,pj->pi', R, local / (r * r))
-        normal = normal / torch.linalg.norm(normal, dim=1, keepdim=True)
-        unit = local / r
-        blotch = value_noise(unit * 1.6 + idx[:, None].to(torch.float32) * 7.31, seed=21, octaves=2)
-        amount = self.e_amount[idx]
-        blend = torch.clamp((blotch - (1.0 - amount)) * 4.0 + amount * 0.3, 0.0, 1.0)[:, None]
-        fine = value_noise(p * 180.0, seed=22)[:, None]
-        albedo = ((1 - blend) * self.e_albedo[idx] + blend * self.e_blush[idx]) * (0.92 + 0.16 * fine)
-        inst = self.e_instance[idx]
-        bark = inst == 0
-        if bool(bark.any()):
-            albedo[bark] = self.e_albedo[idx[bark]] * (0.7 + 0.6 * value_noise(p[bark] * 60.0, seed=31))[:, None]
-        return albedo, normal, inst
-
-    def _leaf_surface(self, p: torch.Tensor, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        rel = p - self.l_center[idx]
-        half = self.l_half[idx]
-        x = (rel * self.l_u[idx]).sum(1) / half[:, 0]
-        y = (rel * self.l_v[idx]).sum(1) / half[:, 1]
-        edge = torch.clamp(1.0 - x * x, min=1e-3)
-        vein = torch.exp(-(y / edge / 0.08) ** 2)   # midrib
-        side = 0.9 + 0.1 * torch.cos(18.0 * (x + 0.5 * y.abs() / edge))  # side veins
-        tone = 0.85 + 0.3 * value_noise(p * 90.0, seed=41)
-        albedo = self.l_albedo[idx] * (tone * side * (1.0 - 0.25 * vein) + 0.0)[:, None] \
-            + 0.15 * vein[:, None] * torch.tensor([0.6, 0.7, 0.3], device=self.device)
-        return albedo, self.l_n[idx]
-
-    def _cylinder_surface(self, p: torch.Tensor, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        p0, p1 = self.c_p0[idx], self.c_p1[idx]
-        axis = p1 - p0
-        axis = axis / torch.linalg.norm(axis, dim=1, keepdim=True)
-        rel = p - p0
-        s = (rel * axis).sum(1, keepdim=True)
-        radial = rel - s * axis
-        normal = radial / torch.clamp(torch.linalg.norm(radial, dim=1, keepdim=True), min=1e-12)
-        # Bark: noise stretched along the axis (world-anchored, so consistent across views).
-        stretched = p * 70.0 - 55.0 * s * axis
-        albedo = self.c_albedo[idx] * (0.65 + 0.7 * value_noise(stretched, seed=51, octaves=2))[:, None]
-        return albedo, normal
 
     # ------------------------------------------------------------------ ray casting (tests, visibility)
     def first_hit(self, origins: np.ndarray, dirs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -406,7 +321,7 @@ class Renderer:
             n_rays = len(o_all)
             best_t = torch.full((n_rays,), torch.inf, device=self.device)
             best_inst = torch.zeros(n_rays, dtype=torch.int64, device=self.device)
-            for kind, n in enumerate((self.n_e, self.n_l, self.n_c)):
+            for kind, n in enumerate(self.tensors.counts):
                 if n == 0:
                     continue
                 step = max(1, _MAX_PAIRS // n)
@@ -414,10 +329,10 @@ class Renderer:
                     ray = torch.arange(r0, min(n_rays, r0 + step), device=self.device)
                     ray_p = ray.repeat_interleave(n)
                     idx = torch.arange(n, device=self.device).repeat(len(ray))
-                    t = self._hit(kind, o_all[ray_p], d_all[ray_p], idx).reshape(len(ray), n)
+                    t = self.tensors.hit(kind, o_all[ray_p], d_all[ray_p], idx).reshape(len(ray), n)
                     t_min, arg = t.min(dim=1)
                     better = t_min < best_t[ray]
                     best_t[ray] = torch.where(better, t_min, best_t[ray])
-                    inst = self.e_instance[arg] if kind == 0 else torch.zeros_like(arg)
+                    inst = self.tensors.e_instance[arg] if kind == 0 else torch.zeros_like(arg)
                     best_inst[ray] = torch.where(better, inst, best_inst[ray])
             return best_t.cpu().numpy(), best_inst.cpu().numpy()
