@@ -31,7 +31,7 @@ setup(
             'fruitnerfpp = fruitnerfpp_ros.cli.main:main',
             'fruit_counter = fruitnerfpp_ros.nodes.fruit_counter:main',
             'orchard_sim = fruitnerfpp_ros.nodes.orchard_sim:main',
-            'bag_replay = fruitnerfpp_ros.nodes.bag_replay:main',
+            'bag_replay = fruitnerfpp_ros.cli.replay:main',
         ],
     },
 )

@@ -53,8 +53,19 @@ def test_core_does_not_import_nodes_or_cli(path: Path) -> None:
     assert not upward, f'{path} imports {sorted(upward)}: data flows one way (core <- cli/nodes)'
 
 
+NODE_FILES = sorted((PACKAGE / 'nodes').rglob('*.py'))
+
+
+@pytest.mark.parametrize('path', CORE_FILES + NODE_FILES, ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_nothing_below_the_command_line_imports_it(path: Path) -> None:
+    """The CLI calls nodes and core (``fruitnerfpp replay`` -> nodes/bag_replay.py), never the reverse; imports
+    inside functions count too."""
+    cli = {m for m in _imported_modules(path) if m == 'fruitnerfpp_ros.cli' or m.startswith('fruitnerfpp_ros.cli.')}
+    assert not cli, f'{path} imports {sorted(cli)}: the command line sits on top of nodes and core'
+
+
 def test_core_has_files() -> None:
-    assert len(CORE_FILES) >= 10
+    assert len(CORE_FILES) >= 10 and len(NODE_FILES) >= 5
 
 
 def test_the_rules_catch_what_they_are_for() -> None:
@@ -63,6 +74,8 @@ def test_the_rules_catch_what_they_are_for() -> None:
     names = _imported_modules(PACKAGE / 'core' / 'data' / 'probe.py', source)
     assert {'rcl_interfaces.msg', 'tf2_ros'} <= {m for m in names if is_ros_module(m)}
     assert {'fruitnerfpp_ros.nodes.conversions', 'fruitnerfpp_ros.cli'} <= names
+    lazy = 'def main():\n    from fruitnerfpp_ros.cli.main import main as cli_main\n    return cli_main()\n'
+    assert 'fruitnerfpp_ros.cli.main' in _imported_modules(PACKAGE / 'nodes' / 'probe.py', lazy)
     assert not any(is_ros_module(m) for m in ('numpy', 'rosbags.highlevel', 'mcap', 'fruitnerfpp_ros.core'))
 
 

@@ -35,6 +35,8 @@ def test_setup_py_install_gives_the_ament_layout(tmp_path: Path) -> None:
         path = prefix / 'lib' / PKG / exe
         assert path.is_file() and os.access(path, os.X_OK), f'{path} missing or not executable'
     assert "'console_scripts', 'fruit_counter'" in (prefix / 'lib' / PKG / 'fruit_counter').read_text()
+    entry_points = (build / f'{PKG}.egg-info' / 'entry_points.txt').read_text()
+    assert 'bag_replay = fruitnerfpp_ros.cli.replay:main' in entry_points  # the CLI calls the replay, not reverse
     assert not (prefix / 'bin' / 'fruit_counter').exists()
 
 

@@ -1,8 +1,13 @@
-"""``fruitnerfpp replay BAG --out RUN_DIR``: count fruit in a recorded rosbag2 (sqlite3 or MCAP) offline."""
+"""``fruitnerfpp replay BAG --out RUN_DIR``: count fruit in a recorded rosbag2 (sqlite3 or MCAP) offline.
+
+Also the ``bag_replay`` executable (``ros2 run fruitnerfpp_ros bag_replay BAG --out RUN_DIR``, see :func:`main`):
+the command line calls the replay in ``nodes/bag_replay.py``, never the reverse.
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -11,7 +16,7 @@ if TYPE_CHECKING:
 
 from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
 
-__all__ = ['register', 'run', 'settings_from_args']
+__all__ = ['register', 'run', 'settings_from_args', 'main']
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -58,3 +63,19 @@ def run(args: argparse.Namespace) -> int:
     print(f'report:      {result.report_path}')
     print(f'results:     {result.results_mcap}')
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``ros2 run fruitnerfpp_ros bag_replay BAG --out RUN_DIR [...]``: ``fruitnerfpp replay`` with its options.
+
+    ROS arguments that ``ros2 run`` / launch append (``--ros-args ...``) are dropped. Returns the exit code.
+    """
+    from fruitnerfpp_ros.cli.main import main as cli_main
+    args = list(sys.argv[1:] if argv is None else argv)
+    if '--ros-args' in args:
+        args = args[:args.index('--ros-args')]
+    return cli_main(['replay', *args])
+
+
+if __name__ == '__main__':
+    sys.exit(main())

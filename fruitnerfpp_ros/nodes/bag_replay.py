@@ -9,7 +9,8 @@ The bag is read with rosbags (no ROS graph, no DDS) and its messages go through 
     results.mcap        the node's output topics (/fruit_counter/fruit_count, fruit_report, fruit_cloud,
                         fruit_centers, fruit_markers, /diagnostics), readable by rosbags, mcap and Foxglove
 
-Run as ``fruitnerfpp replay BAG --out RUN_DIR`` or ``ros2 run fruitnerfpp_ros bag_replay BAG --out RUN_DIR``.
+Run as ``fruitnerfpp replay BAG --out RUN_DIR`` or ``ros2 run fruitnerfpp_ros bag_replay BAG --out RUN_DIR`` (both
+enter through :mod:`fruitnerfpp_ros.cli.replay`; this module never imports the command line).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from fruitnerfpp_ros.nodes.results import (DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, RES
                                            result_messages, write_report)
 from fruitnerfpp_ros.nodes.status import AssemblerStatus, DiagnosticLevel, NodeState
 
-__all__ = ['ROLE_TYPES', 'ReplayResult', 'collect_keyframes', 'replay_bag', 'write_results_mcap', 'main']
+__all__ = ['ROLE_TYPES', 'ReplayResult', 'collect_keyframes', 'replay_bag', 'write_results_mcap']
 
 #: Accepted message types per role (rosbags spelling).
 ROLE_TYPES = {
@@ -254,16 +255,3 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
     topics.append((DIAGNOSTICS_TOPIC, 'diagnostic_msgs/msg/DiagnosticArray', diagnostics))
     results_mcap = write_results_mcap(run_dir / RESULTS_NAME, topics, stamp_ns)
     return ReplayResult(run_dir, keyframes_dir, n_keyframes, result.count, report_path, results_mcap, result, status)
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``ros2 run fruitnerfpp_ros bag_replay BAG --out RUN_DIR [...]`` (same options as ``fruitnerfpp replay``)."""
-    from fruitnerfpp_ros.cli.main import main as cli_main
-    args = list(sys.argv[1:] if argv is None else argv)
-    if '--ros-args' in args:  # ros2 run / launch append ROS arguments we do not use
-        args = args[:args.index('--ros-args')]
-    return cli_main(['replay', *args])
-
-
-if __name__ == '__main__':
-    sys.exit(main())
