@@ -33,7 +33,7 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
-from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
+from fruitnerfpp_ros.core.data.keyframe_store import KeyframeSnapshot, KeyframeStore
 from fruitnerfpp_ros.core.progress import ProgressEvent
 from fruitnerfpp_ros.errors import FruitNerfError
 from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler
@@ -139,6 +139,7 @@ class FruitCounterNode(Node):
         self._state_lock = threading.Lock()
         self._run = RunStatus()
         self._train_thread: threading.Thread | None = None
+        self._start_lock = threading.Lock()
         self._stop_event = threading.Event()
         self._train_index = 0
         self._auto_started = False
@@ -213,34 +214,44 @@ class FruitCounterNode(Node):
             self._run = dataclasses.replace(self._run, **changes)
 
     def start_training(self) -> tuple[bool, str]:
-        """Start a training run on the keyframes collected so far; returns (started, message)."""
-        if self.training:
-            run = self.run_status
-            return False, f'training already running ({run.phase or run.state})'
-        n = len(self.store)
-        if n < self.settings.min_keyframes:
-            return False, f'only {n} keyframe(s) collected, min_keyframes is {self.settings.min_keyframes}'
-        self._train_index += 1
-        index = self._train_index
-        self._stop_event = threading.Event()
-        self._update_run(state=NodeState.TRAINING, phase=None, progress=0.0, last_error='')
-        self._train_thread = threading.Thread(target=self._train_worker, args=(index, self._stop_event),
-                                              name=f'fruit_counter_train_{index}', daemon=True)
-        self._train_thread.start()
-        return True, f'training run {index} started on {n} keyframes ({self.run_dir / f"train_{index:03d}"})'
+        """Start a training run on the keyframes collected so far; returns (started, message).
+
+        The keyframes are frozen here (a transforms.json snapshot: one small file, written under the store's lock),
+        before answering, so the answer, the log and the run's report name the same keyframes however many arrive
+        while the training thread starts.
+        """
+        with self._start_lock:  # ~/train and auto-train (tick) may ask at once
+            if self.training:
+                run = self.run_status
+                return False, f'training already running ({run.phase or run.state})'
+            n = len(self.store)
+            if n < self.settings.min_keyframes:
+                return False, f'only {n} keyframe(s) collected, min_keyframes is {self.settings.min_keyframes}'
+            index = self._train_index + 1
+            try:
+                snapshot = self.store.snapshot(self.run_dir / 'datasets' / f'train_{index:03d}')
+            except (FruitNerfError, OSError) as err:
+                return False, f'cannot freeze the keyframes for training run {index}: {err}'
+            self._train_index = index
+            self._stop_event = threading.Event()
+            self._update_run(state=NodeState.TRAINING, phase=None, progress=0.0, last_error='')
+            self._train_thread = threading.Thread(target=self._train_worker, args=(index, snapshot, self._stop_event),
+                                                  name=f'fruit_counter_train_{index}', daemon=True)
+            self._train_thread.start()
+        return True, (f'training run {index} started on {snapshot.n_keyframes} keyframes '
+                      f'({self.run_dir / f"train_{index:03d}"})')
 
     def _on_progress(self, event: ProgressEvent) -> None:
         self._update_run(state=NodeState.during(event.phase.stage), phase=event.phase, progress=event.fraction)
 
-    def _train_worker(self, index: int, stop_event: threading.Event) -> None:
+    def _train_worker(self, index: int, snapshot: KeyframeSnapshot, stop_event: threading.Event) -> None:
+        stamp_ns, n_keyframes = snapshot.latest_stamp_ns, snapshot.n_keyframes  # what this run trains on
         try:
             from fruitnerfpp_ros.core.clustering.workers import partition_pool
             from fruitnerfpp_ros.core.pipeline import run_pipeline
             configs = pipeline_configs(self.settings)
             for warning in configs.warnings:
                 self.get_logger().warning(warning)
-            snapshot = self.store.snapshot(self.run_dir / 'datasets' / f'train_{index:03d}')
-            stamp_ns, n_keyframes = snapshot.latest_stamp_ns, snapshot.n_keyframes  # what this run trains on
             with partition_pool(configs.cluster.n_jobs) as pool:  # workers live for this run only
                 result = run_pipeline(snapshot.dataset_dir, self.run_dir / f'train_{index:03d}',
                                       train_config=configs.train, export_config=configs.export,

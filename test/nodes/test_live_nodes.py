@@ -145,6 +145,66 @@ def test_bad_live_input_is_survived_and_services_answer(graph: Graph, tmp_path: 
     assert len(read_transforms(moved).frames) == len(stamps)
 
 
+ROLE = {'/camera/image_raw': 'image', '/camera/camera_info': 'camera_info', '/camera/pose': 'pose',
+        '/camera/instance_mask': 'mask'}
+
+
+def test_train_answer_and_report_name_the_same_keyframes_while_frames_keep_arriving(
+        graph: Graph, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Defect 9: ~/train said 40 keyframes, the run trained on 48 that arrived while its thread started."""
+    from types import SimpleNamespace
+
+    import fruitnerfpp_ros.core.pipeline as pipeline
+    import fruitnerfpp_ros.nodes.fruit_counter as fruit_counter
+    from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+    from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+    from fruitnerfpp_ros.core.progress import Phase, ProgressEvent
+    from fruitnerfpp_ros.nodes.params import PipelineConfigs
+
+    frames_arrived = threading.Event()
+    seen: dict[str, Any] = {}
+
+    def slow_configs(settings: Any) -> PipelineConfigs:  # the training thread's first step (a torch import) is slow
+        assert frames_arrived.wait(20)
+        return PipelineConfigs(None, None, ClusterConfig(n_jobs=1), 'stand-in', ())
+
+    def stand_in_pipeline(dataset_dir: Path, run_dir: Path, **kwargs: Any) -> Any:
+        seen['trained_on'] = len(read_transforms(dataset_dir).frames)
+        kwargs['progress'](ProgressEvent(Phase.EXPORT_COARSE, 1, 4))
+        seen['while_exporting'] = counter.run_status
+        xyz = np.array([[0, 1, 0], [0.01, 1, 0], [3, 3, 3]], np.float32)
+        cloud = FruitPointCloud(xyz, np.zeros((3, 3), np.uint8), np.ones(3, np.float32), np.zeros((3, 2), np.float32))
+        fruit = Fruit(1, np.array([0.005, 1, 0]), 0.07, np.full(3, 0.07), 2)
+        return SimpleNamespace(count=CountResult(np.array([1, 1, 0], np.int32), [fruit]), cloud=cloud, stopped=False)
+
+    monkeypatch.setattr(fruit_counter, 'pipeline_configs', slow_configs)
+    monkeypatch.setattr(pipeline, 'run_pipeline', stand_in_pipeline)
+    counter = _counter(graph, tmp_path, min_translation_m=0.1, min_keyframes=3)
+    msgs = bf.messages(8)
+
+    def feed(frames: range) -> None:
+        for topic, _, stamp, msg in msgs:
+            if (stamp - bf.START_NS) // bf.PERIOD_NS in frames:
+                counter.assembler.on_message(ROLE[topic], msg)
+
+    feed(range(0, 4))
+    assert len(counter.store) == 4
+    robot = graph.add(Node('robot', context=graph.context))
+    answer = graph.call(robot.create_client(Trigger, '/fruit_counter/train'))
+    assert answer.success, answer.message
+    feed(range(4, 8))  # the drive goes on while the training thread starts
+    assert len(counter.store) == 8
+    frames_arrived.set()
+    wait_for(lambda: counter.run_status.state in (NodeState.DONE, NodeState.ERROR), 30, 'the stand-in run')
+    assert counter.run_status.state is NodeState.DONE, counter.run_status.last_error
+    report = json.loads((tmp_path / 'run' / 'train_001' / 'fruit_report.json').read_text())
+    answered = int(answer.message.split(' started on ')[1].split()[0])
+    assert answered == seen['trained_on'] == report['keyframes'] == 4
+    assert (seen['while_exporting'].state, seen['while_exporting'].phase) == (NodeState.EXPORTING,
+                                                                              Phase.EXPORT_COARSE)
+
+
 def test_orchard_sim_replays_a_bag_as_live_topics(graph: Graph, tmp_path: Path) -> None:
     from fruitnerfpp_ros.nodes.orchard_sim import OrchardSimNode
     bag = bf.write_bag(tmp_path / 'bag', bf.messages(6), tf_frames=6)
