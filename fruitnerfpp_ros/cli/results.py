@@ -2,7 +2,8 @@
 
 - ``export RUN_DIR [--out cloud.ply]``: sample the trained field into a fruit point cloud (+ .npz, export.json).
 - ``count RUN_DIR|cloud.ply [--out counts.json]``: cluster the cloud into fruits.
-- ``eval counts.json --gt gt_fruits.json [--json]``: precision / recall / F1 (Hungarian and greedy matching).
+- ``eval counts.json --gt gt_fruits.json [--json] [--picture out.png [--dataset DATA_DIR]]``: precision / recall /
+  F1 (Hungarian and greedy matching), optionally drawn.
 - ``run DATA_DIR --out RUN_DIR [--preset tiny]``: train -> export -> count (-> eval), then a result table.
 """
 
@@ -100,6 +101,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('--tolerance', type=float, default=1.0, help='match reach in GT diameters (default 1)')
     p.add_argument('--include-unseen', action='store_true',
                    help='count GT fruits seen by no training view in the recall (excluded by default)')
+    p.add_argument('--picture', type=Path, help='also draw hits / misses / false counts to this PNG (top view)')
+    p.add_argument('--dataset', type=Path, help='with --picture: the dataset whose view seeing most fruits is drawn')
     p.set_defaults(func=_run_eval)
 
     p = subparsers.add_parser('run', help='train -> export -> count (-> eval) on a dataset',
@@ -145,6 +148,12 @@ def _run_eval(args: argparse.Namespace) -> int:
     metrics = evaluate_run(args.counts, args.gt, out=args.out, tolerance=args.tolerance,
                            exclude_unseen=not args.include_unseen)
     print(json.dumps(metrics.to_json()) if args.json else metrics.table())
+    if args.picture is not None:
+        from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth, load_predicted_centers
+        from fruitnerfpp_ros.core.evaluation.picture import write_count_picture
+
+        write_count_picture(args.picture, args.dataset, load_predicted_centers(args.counts),
+                            load_ground_truth(args.gt), metrics)
     return 0
 
 
