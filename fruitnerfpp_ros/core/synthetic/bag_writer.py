@@ -1,15 +1,19 @@
 """Write a synthetic scene as a rosbag2 recording (rosbags; mcap by default, sqlite3 optional).
 
-Topics (identical header stamps per frame; images carry frame_id ``camera_optical``):
+Topics (identical header stamps per frame; images carry frame_id ``camera_optical``; ``world`` is the writer's
+``world_frame``, ``map`` by default):
 
-- ``/camera/image_raw``      sensor_msgs/msg/Image, rgb8
-- ``/camera/camera_info``    sensor_msgs/msg/CameraInfo, ROS principal point (cx_ros = cx_transforms - 0.5)
-- ``/camera/pose``           geometry_msgs/msg/PoseStamped, pose of ``camera_optical`` in ``map`` (REP-103 axes)
-- ``/camera/instance_mask``  sensor_msgs/msg/Image, mono16 instance ids (0 = background)
-- ``/tf``                    tf2_msgs/msg/TFMessage, ``map`` -> ``base_link``
+- ``/camera/image_raw``      sensor_msgs/msg/Image, rgb8 (``image_format='raw'``), or instead
+- ``/camera/image_raw/compressed``  sensor_msgs/msg/CompressedImage, format ``rgb8; jpeg compressed bgr8`` as
+                             image_transport's compressed plugin names and writes it (``image_format='jpeg'``)
+- ``/camera/camera_info``    sensor_msgs/msg/CameraInfo, ROS principal point (cx_ros = cx_transforms - 0.5),
+                             plumb_bob D = [k1, k2, p1, p2, k3] (zeros for an undistorted camera)
+- ``/camera/pose``           geometry_msgs/msg/PoseStamped, pose of ``camera_optical`` in ``world`` (REP-103 axes)
+- ``/camera/instance_mask``  sensor_msgs/msg/Image, mono16 instance ids (0 = background; never compressed)
+- ``/tf``                    tf2_msgs/msg/TFMessage, ``world`` -> ``base_link``
 - ``/tf_static``             tf2_msgs/msg/TFMessage, ``base_link`` -> ``camera_optical`` (once, latched QoS)
 
-``base_link`` is chosen so that ``T_map_base_link @ T_base_link_camera_optical`` equals the optical pose.
+``base_link`` is chosen so that ``T_world_base_link @ T_base_link_camera_optical`` equals the optical pose.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any
 
+import cv2
 import numpy as np
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer
@@ -26,12 +31,14 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics
+from fruitnerfpp_ros.core.synthetic.lens import distortion_coefficients
 from fruitnerfpp_ros.core.geometry import (invert_transform, optical_from_opengl,
                                            principal_point_ros_from_transforms, quaternion_from_transform)
 from fruitnerfpp_ros.errors import SynthError
 
 __all__ = ['BagWriter', 'TOPICS', 'T_BASE_LINK_CAMERA_OPTICAL', 'BAG_START_NS', 'FRAME_PERIOD_NS',
-           'MAP_FRAME', 'BASE_FRAME', 'CAMERA_FRAME', 'STORAGES']
+           'MAP_FRAME', 'BASE_FRAME', 'CAMERA_FRAME', 'STORAGES', 'COMPRESSED_IMAGE_TOPIC', 'JPEG_FORMAT',
+           'image_topic']
 
 TOPICS = {
     'image': '/camera/image_raw',
@@ -41,6 +48,10 @@ TOPICS = {
     'tf': '/tf',
     'tf_static': '/tf_static',
 }
+#: The JPEG image topic: image_transport's name for the compressed transport of ``TOPICS['image']``.
+COMPRESSED_IMAGE_TOPIC = TOPICS['image'] + '/compressed'
+#: ``CompressedImage.format`` as compressed_image_transport writes it for an rgb8 image encoded as JPEG.
+JPEG_FORMAT = 'rgb8; jpeg compressed bgr8'
 MAP_FRAME, BASE_FRAME, CAMERA_FRAME = 'map', 'base_link', 'camera_optical'
 STORAGES = {'mcap': StoragePlugin.MCAP, 'sqlite3': StoragePlugin.SQLITE3}
 #: Stamp of the first frame (fixed, so bags are byte-identical between runs), nanoseconds.
@@ -61,6 +72,11 @@ _LATCHED_QOS = Qos(QosHistory.KEEP_LAST, 1, QosReliability.RELIABLE, QosDurabili
                    _FOREVER, QosLiveliness.AUTOMATIC, _FOREVER, False)
 
 
+def image_topic(image_format: str) -> str:
+    """The camera image topic of a bag written with ``image_format`` (``raw`` or ``jpeg``)."""
+    return COMPRESSED_IMAGE_TOPIC if image_format == 'jpeg' else TOPICS['image']
+
+
 class BagWriter:
     """Context manager writing frames of a synthetic scene into a rosbag2 directory.
 
@@ -68,16 +84,28 @@ class BagWriter:
         path: bag directory to create. An existing rosbag2 directory (with ``metadata.yaml``) is replaced; any
             other existing path is refused.
         storage: ``mcap`` (default) or ``sqlite3``.
+        image_format: ``raw`` (Image rgb8 on ``/camera/image_raw``) or ``jpeg`` (CompressedImage on
+            ``/camera/image_raw/compressed``).
+        jpeg_quality: 1..100, for ``jpeg``.
+        world_frame: fixed frame of the pose topic and parent of ``base_link`` on /tf.
 
     Raises:
-        SynthError: unknown storage, or ``path`` exists and is not a bag, or cannot be written.
+        SynthError: unknown storage or image format, or ``path`` exists and is not a bag, or cannot be written.
     """
 
-    def __init__(self, path: str | Path, storage: str = 'mcap') -> None:
+    def __init__(self, path: str | Path, storage: str = 'mcap', *, image_format: str = 'raw', jpeg_quality: int = 90,
+                 world_frame: str = MAP_FRAME) -> None:
         if storage not in STORAGES:
             raise SynthError(f'unknown bag storage {storage!r}; expected one of {", ".join(STORAGES)}')
+        if image_format not in ('raw', 'jpeg'):
+            raise SynthError(f'unknown bag image format {image_format!r}; expected raw or jpeg')
         self.path = Path(path)
         self.storage = storage
+        self.image_format = image_format
+        self.jpeg_quality = int(jpeg_quality)
+        self.world_frame = world_frame
+        #: Topic of each role in this bag (``image`` depends on the image format).
+        self.topics = {**TOPICS, 'image': image_topic(image_format)}
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         self._writer: Writer | None = None
         self._conns: dict[str, Any] = {}
@@ -95,14 +123,15 @@ class BagWriter:
             self._writer.open()
         except OSError as err:
             raise SynthError(f'cannot write bag {self.path}: {err.strerror or err}') from err
-        w, ts = self._writer, self.typestore
+        w, ts, topics = self._writer, self.typestore, self.topics
+        image_type = 'sensor_msgs/msg/CompressedImage' if self.image_format == 'jpeg' else 'sensor_msgs/msg/Image'
         self._conns = {
-            'image': w.add_connection(TOPICS['image'], 'sensor_msgs/msg/Image', typestore=ts),
-            'camera_info': w.add_connection(TOPICS['camera_info'], 'sensor_msgs/msg/CameraInfo', typestore=ts),
-            'pose': w.add_connection(TOPICS['pose'], 'geometry_msgs/msg/PoseStamped', typestore=ts),
-            'instance_mask': w.add_connection(TOPICS['instance_mask'], 'sensor_msgs/msg/Image', typestore=ts),
-            'tf': w.add_connection(TOPICS['tf'], 'tf2_msgs/msg/TFMessage', typestore=ts),
-            'tf_static': w.add_connection(TOPICS['tf_static'], 'tf2_msgs/msg/TFMessage', typestore=ts,
+            'image': w.add_connection(topics['image'], image_type, typestore=ts),
+            'camera_info': w.add_connection(topics['camera_info'], 'sensor_msgs/msg/CameraInfo', typestore=ts),
+            'pose': w.add_connection(topics['pose'], 'geometry_msgs/msg/PoseStamped', typestore=ts),
+            'instance_mask': w.add_connection(topics['instance_mask'], 'sensor_msgs/msg/Image', typestore=ts),
+            'tf': w.add_connection(topics['tf'], 'tf2_msgs/msg/TFMessage', typestore=ts),
+            'tf_static': w.add_connection(topics['tf_static'], 'tf2_msgs/msg/TFMessage', typestore=ts,
                                           offered_qos_profiles=[_LATCHED_QOS]),
         }
         return self
@@ -128,19 +157,29 @@ class BagWriter:
             header=self._header(stamp_ns, CAMERA_FRAME), height=h, width=w, encoding=encoding, is_bigendian=0,
             step=step, data=np.frombuffer(data.tobytes(), dtype=np.uint8))
 
+    def _jpeg(self, stamp_ns: int, rgb: np.ndarray) -> Any:
+        ok, data = cv2.imencode('.jpg', np.ascontiguousarray(rgb[..., ::-1]),
+                                [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        if not ok:
+            raise SynthError(f'cannot encode a {rgb.shape[1]}x{rgb.shape[0]} image as JPEG')
+        return self.typestore.types['sensor_msgs/msg/CompressedImage'](
+            header=self._header(stamp_ns, CAMERA_FRAME), format=JPEG_FORMAT,
+            data=np.frombuffer(data.tobytes(), dtype=np.uint8))
+
     def _camera_info(self, stamp_ns: int, K: CameraIntrinsics) -> Any:
         T = self.typestore.types
         cx, cy = principal_point_ros_from_transforms(K.cx, K.cy)
         roi = T['sensor_msgs/msg/RegionOfInterest'](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
         return T['sensor_msgs/msg/CameraInfo'](
             header=self._header(stamp_ns, CAMERA_FRAME), height=K.h, width=K.w, distortion_model='plumb_bob',
-            d=np.zeros(5), k=np.array([K.fl_x, 0.0, cx, 0.0, K.fl_y, cy, 0.0, 0.0, 1.0]), r=np.eye(3).reshape(-1),
+            d=distortion_coefficients(K), k=np.array([K.fl_x, 0.0, cx, 0.0, K.fl_y, cy, 0.0, 0.0, 1.0]),
+            r=np.eye(3).reshape(-1),
             p=np.array([K.fl_x, 0.0, cx, 0.0, 0.0, K.fl_y, cy, 0.0, 0.0, 0.0, 1.0, 0.0]), binning_x=0, binning_y=0,
             roi=roi)
 
-    def _pose(self, T_map_frame: np.ndarray) -> Any:
+    def _pose(self, T_world_frame: np.ndarray) -> Any:
         T = self.typestore.types
-        t, q = quaternion_from_transform(T_map_frame)
+        t, q = quaternion_from_transform(T_world_frame)
         return T['geometry_msgs/msg/Pose'](position=T['geometry_msgs/msg/Point'](x=t[0], y=t[1], z=t[2]),
                                            orientation=T['geometry_msgs/msg/Quaternion'](x=q[0], y=q[1], z=q[2],
                                                                                          w=q[3]))
@@ -162,20 +201,23 @@ class BagWriter:
     def write_frame(self, stamp_ns: int, rgb: np.ndarray, instance: np.ndarray, T_world_camera: np.ndarray,
                     K: CameraIntrinsics) -> None:
         """Write one frame: RGB [H, W, 3] uint8, instance ids [H, W] uint16, camera-to-world pose in OpenGL axes
-        (transforms.json convention) and transforms.json intrinsics (top-left-corner principal point)."""
-        T_map_optical = optical_from_opengl(T_world_camera)
+        (transforms.json convention) and transforms.json intrinsics (top-left-corner principal point; its
+        ``distortion`` k1, k2, p1, p2, k3 go into CameraInfo's D)."""
+        T_world_optical = optical_from_opengl(T_world_camera)
         types = self.typestore.types
         if not self._static_written:
             tf_static = types['tf2_msgs/msg/TFMessage'](transforms=[
                 self._transform_stamped(stamp_ns, BASE_FRAME, CAMERA_FRAME, T_BASE_LINK_CAMERA_OPTICAL)])
             self._write('tf_static', stamp_ns, tf_static)
             self._static_written = True
-        T_map_base = T_map_optical @ invert_transform(T_BASE_LINK_CAMERA_OPTICAL)
+        T_world_base = T_world_optical @ invert_transform(T_BASE_LINK_CAMERA_OPTICAL)
         self._write('tf', stamp_ns, types['tf2_msgs/msg/TFMessage'](transforms=[
-            self._transform_stamped(stamp_ns, MAP_FRAME, BASE_FRAME, T_map_base)]))
-        pose = types['geometry_msgs/msg/PoseStamped'](header=self._header(stamp_ns, MAP_FRAME),
-                                                      pose=self._pose(T_map_optical))
+            self._transform_stamped(stamp_ns, self.world_frame, BASE_FRAME, T_world_base)]))
+        pose = types['geometry_msgs/msg/PoseStamped'](header=self._header(stamp_ns, self.world_frame),
+                                                      pose=self._pose(T_world_optical))
         self._write('pose', stamp_ns, pose)
         self._write('camera_info', stamp_ns, self._camera_info(stamp_ns, K))
-        self._write('image', stamp_ns, self._image(stamp_ns, rgb.astype(np.uint8), 'rgb8'))
+        image = self._jpeg(stamp_ns, rgb.astype(np.uint8)) if self.image_format == 'jpeg' \
+            else self._image(stamp_ns, rgb.astype(np.uint8), 'rgb8')
+        self._write('image', stamp_ns, image)
         self._write('instance_mask', stamp_ns, self._image(stamp_ns, instance.astype(np.uint16), 'mono16'))

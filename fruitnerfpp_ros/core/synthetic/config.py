@@ -1,17 +1,47 @@
-"""Configuration of the synthetic orchard generator (``fruitnerfpp synth``, ``config/synth.yaml``)."""
+"""Configuration of the synthetic orchard generator (``fruitnerfpp synth``, ``config/synth.yaml``).
+
+Every option added after the first release defaults to the old behaviour, so a default dataset (e.g. the CI
+scene ``SynthConfig(fruit='apple', count=20, views=48, resolution=(96, 96), seed=0)``) keeps byte-identical images,
+masks and poses. The ``row_*`` / ``camera_*`` options shape the ``row`` trajectory only.
+"""
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass
 
 from fruitnerfpp_ros.core.synthetic.fruit_types import FRUIT_NAMES, MIXED
 from fruitnerfpp_ros.errors import SynthError
 
-__all__ = ['SynthConfig', 'TRAJECTORIES', 'MIXED_DEFAULT_COUNT']
+__all__ = ['SynthConfig', 'TRAJECTORIES', 'BAG_IMAGE_FORMATS', 'MIXED_DEFAULT_COUNT']
 
 TRAJECTORIES = ('hemisphere', 'row')
+#: Image encodings of the bag's camera topic: raw ``sensor_msgs/Image`` rgb8 or JPEG ``CompressedImage``.
+BAG_IMAGE_FORMATS = ('raw', 'jpeg')
 #: Default fruit count of a ``mixed`` tree (split evenly over the six types).
 MIXED_DEFAULT_COUNT = 240
+_FRAME_NAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_/]*$')
+
+
+def _number(config: 'SynthConfig', name: str, lo: float, hi: float) -> float:
+    """The float field ``name``, checked to lie within [lo, hi]."""
+    value = getattr(config, name)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not lo <= value <= hi:
+        raise SynthError(f'{name} must be a number within {lo:g}..{hi:g}, got {value!r}')
+    return float(value)
+
+
+def _numbers(config: 'SynthConfig', name: str, length: tuple[int, ...]) -> tuple[float, ...]:
+    """The tuple field ``name`` as finite floats, of one of the lengths ``length``."""
+    value = getattr(config, name)
+    try:
+        values = tuple(float(v) for v in value if not isinstance(v, bool))
+    except (TypeError, ValueError):
+        values = ()
+    if len(values) not in length or len(values) != len(value) or not all(math.isfinite(v) for v in values):
+        raise SynthError(f'{name} must be {" or ".join(map(str, length))} finite numbers, got {value!r}')
+    return values
 
 
 @dataclass(frozen=True)
@@ -28,11 +58,12 @@ class SynthConfig:
     """Image size (width, height) in pixels."""
     trajectory: str = 'hemisphere'
     """``hemisphere``: random views on the upper hemisphere looking at the tree (BlenderNeRF style);
-    ``row``: a robot driving along the row on both sides of the tree, camera facing the tree."""
+    ``row``: a robot driving past the tree on both sides of the row (out on y < 0 along +x, back on y > 0 along
+    -x), its camera facing the row centre line (x axis) from ``row_standoff_m``, views evenly spaced."""
     seed: int = 0
     """Random seed: the same seed gives byte-identical outputs."""
     fov_deg: float = 50.0
-    """Field of view across the shorter image side, degrees."""
+    """Field of view across the shorter image side, degrees (of the horizontal focal length ``fl_x``)."""
     leaf_scale: float = 1.0
     """Multiplier on the fruit type's leaf density (0 = no leaves)."""
     cluster_scale: float = 1.0
@@ -46,6 +77,39 @@ class SynthConfig:
     and the bag); the images are rendered from the true poses."""
     pose_noise_deg: float = 0.0
     """Standard deviation (degrees, per axis) of a rotation noise on the recorded camera orientations."""
+    row_standoff_m: float = 2.0
+    """``row``: distance (m) from the row centre line (the trunk at y = 0) to the camera; orchards: 1.5-3 m. Must
+    leave the camera outside the crown."""
+    camera_height_m: float = 1.2
+    """``row``: camera height above the ground (m); a mast on a robot: 0.8-2 m."""
+    camera_pitch_deg: float = 5.0
+    """``row``: camera pitch, degrees above the horizon (negative looks down); ground and sky stay in view for
+    pitches well inside the vertical field of view."""
+    row_jitter: float = 1.0
+    """``row``: scale of the drive's smooth jitter along the path (1 = height 2 cm, standoff 3 cm, yaw 1.5 deg,
+    pitch 0.7 deg, roll 1 deg standard deviations over metre-scale wavelengths); 0 = a perfect drive."""
+    row_length_m: float | None = None
+    """``row``: length (m) of each pass, centred on the tree; None = long enough for the tree to enter the view
+    after the first view and leave it before the last."""
+    fy_scale: float = 1.0
+    """Vertical focal length ``fl_y`` = ``fl_x`` x this (unequal pixel pitch; real cameras: 0.98-1.02)."""
+    principal_offset_px: tuple[float, float] = (0.0, 0.0)
+    """Principal point offset (dx, dy) in pixels from the image centre (cx = w / 2 + dx, cy = h / 2 + dy)."""
+    distortion: tuple[float, float, float, float, float] = (0.0, 0.0, 0.0, 0.0, 0.0)
+    """Lens distortion (k1, k2, p1, p2, k3), OpenCV's plumb_bob model on normalised coordinates. Non-zero: the
+    images and masks are distorted, as a real camera delivers them, and transforms.json (nerfstudio ``OPENCV``
+    keys k1, k2, p1, p2, plus k3 when non-zero) and the bag's CameraInfo (D = [k1, k2, p1, p2, k3]) record the
+    coefficients. The model must be invertible over the image (SynthError when generating otherwise)."""
+    appearance_variation: float = 0.0
+    """0..1: how much lighting (sun direction and strength, ambient, colour temperature), sky, ground texture,
+    leaf / bark tint and per-fruit colour vary with the seed (``appearance.py``); 0 = the fixed look."""
+    bag_image_format: str = 'raw'
+    """Bag camera images: ``raw`` (sensor_msgs/Image rgb8 on /camera/image_raw) or ``jpeg``
+    (sensor_msgs/CompressedImage on /camera/image_raw/compressed, as image_transport's compressed plugin)."""
+    bag_jpeg_quality: int = 90
+    """JPEG quality 1..100 of ``bag_image_format: jpeg``."""
+    world_frame: str = 'map'
+    """Fixed frame of the bag: PoseStamped header and the /tf parent of ``base_link`` (e.g. map, odom)."""
 
     def __post_init__(self) -> None:
         known = (*FRUIT_NAMES, MIXED)
@@ -73,6 +137,36 @@ class SynthConfig:
             raise SynthError('leaf_scale and cluster_scale must be >= 0')
         if self.sparse_points < 0:
             raise SynthError(f'sparse_points must be >= 0, got {self.sparse_points!r}')
+        self._check_row_and_camera()
+        if self.bag_image_format not in BAG_IMAGE_FORMATS:
+            raise SynthError(f'unknown bag_image_format {self.bag_image_format!r}; expected one of '
+                             f'{", ".join(BAG_IMAGE_FORMATS)}')
+        quality = self.bag_jpeg_quality
+        if isinstance(quality, bool) or not isinstance(quality, int) or not 1 <= quality <= 100:
+            raise SynthError(f'bag_jpeg_quality must be an integer within 1..100, got {quality!r}')
+        if not isinstance(self.world_frame, str) or not _FRAME_NAME.match(self.world_frame):
+            raise SynthError(f'world_frame must be a ROS frame name like map or odom (letters, digits, _ and /, '
+                             f'no leading /), got {self.world_frame!r}')
+
+    def _check_row_and_camera(self) -> None:
+        _number(self, 'row_standoff_m', 0.3, 50.0)
+        _number(self, 'camera_height_m', 0.05, 20.0)
+        _number(self, 'camera_pitch_deg', -60.0, 60.0)
+        _number(self, 'row_jitter', 0.0, 10.0)
+        if self.row_length_m is not None:
+            _number(self, 'row_length_m', 0.01, 1000.0)
+        _number(self, 'fy_scale', 0.5, 2.0)
+        w, h = self.resolution
+        dx, dy = _numbers(self, 'principal_offset_px', (2,))
+        if abs(dx) >= 0.5 * w or abs(dy) >= 0.5 * h:
+            raise SynthError(f'principal_offset_px must keep the principal point inside the {w}x{h} image, got '
+                             f'{self.principal_offset_px!r}')
+        object.__setattr__(self, 'principal_offset_px', (dx, dy))
+        coefficients = _numbers(self, 'distortion', (4, 5))
+        if any(abs(k) > 10.0 for k in coefficients):
+            raise SynthError(f'distortion coefficients must be within -10..10, got {self.distortion!r}')
+        object.__setattr__(self, 'distortion', (coefficients + (0.0,))[:5])
+        _number(self, 'appearance_variation', 0.0, 1.0)
 
     @property
     def width(self) -> int:

@@ -25,12 +25,21 @@ def _round(values: Any, digits: int = 6) -> list[float]:
     return [round(float(v), digits) for v in np.asarray(values).reshape(-1)]
 
 
-def write_gt_fruits(path: Path, fruits: Sequence[GtFruit], n_views_visible: np.ndarray,
+def write_gt_fruits(path: Path, fruits: Sequence[GtFruit], visible: np.ndarray,
                     extra: dict[str, Any] | None = None) -> None:
     """Write ``gt_fruits.json``: ``{"fruits": [{"id", "type", "center", "radii", "diameter", "rotation",
-    "n_views_visible"}...], ...extra}``; metres, world frame (z up, ground z = 0)."""
+    "views_visible", "n_views_visible"}...], ...extra}``; metres, world frame (z up, ground z = 0).
+
+    Args:
+        path: the file to write.
+        fruits: ground truth ordered by id.
+        visible: [V, N] bool, view v shows at least one pixel of fruit n (all views: the generator knows no
+            training split). ``views_visible`` lists the view indices, ``n_views_visible`` counts them.
+        extra: other top-level keys.
+    """
     records = []
-    for fruit, n_views in zip(fruits, n_views_visible):
+    for fruit, seen_by in zip(fruits, np.asarray(visible, dtype=bool).T):
+        views = np.flatnonzero(seen_by)
         records.append({
             'id': int(fruit.id),
             'type': fruit.type,
@@ -38,7 +47,8 @@ def write_gt_fruits(path: Path, fruits: Sequence[GtFruit], n_views_visible: np.n
             'radii': _round(fruit.radii),
             'diameter': round(float(2.0 * max(fruit.radii[0], fruit.radii[1])), 6),
             'rotation': [_round(row) for row in fruit.rotation],
-            'n_views_visible': int(n_views),
+            'views_visible': [int(v) for v in views],
+            'n_views_visible': len(views),
         })
     data: dict[str, Any] = dict(extra or {})
     data['fruits'] = records

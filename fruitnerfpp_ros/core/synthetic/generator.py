@@ -2,12 +2,15 @@
 
 Output directory::
 
-    transforms.json     nerfstudio convention (OpenGL camera-to-world, top-left-corner cx, cy), per-frame
-                        instance_path and semantic_path, ply_file_path
-    images/0000.png     RGB
-    instances/0000.png  uint16 instance ids (0 = background, k = fruit k of gt_fruits.json)
+    transforms.json     nerfstudio convention (OpenGL camera-to-world, top-left-corner cx, cy; camera_model OPENCV
+                        with k1, k2, p1, p2 (k3) when the lens distorts), per-frame instance_path and semantic_path,
+                        ply_file_path
+    images/0000.png     RGB (distorted like the lens when ``distortion`` is set)
+    instances/0000.png  uint16 instance ids (0 = background, k = fruit k of gt_fruits.json), from the same pixel rays
     semantics/0000.png  fruit = 255, rest = 0
-    gt_fruits.json      {"fruits": [{"id", "type", "center", "radii", "diameter", "rotation", "n_views_visible"}]}
+    gt_fruits.json      {"fruits": [{"id", "type", "center", "radii", "diameter", "rotation", "views_visible",
+                        "n_views_visible"}]}: views_visible lists every view (training and held-out alike: the
+                        generator knows no split) showing at least one pixel of the fruit
     sparse_pc.ply       a few thousand visible surface points (like a COLMAP sparse cloud)
 """
 
@@ -26,11 +29,13 @@ from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, FrameE
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.geometry import T_OPENGL_OPTICAL
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.synthetic.appearance import sample_appearance, vary_scene_colours
 from fruitnerfpp_ros.core.synthetic.bag_writer import BAG_START_NS, FRAME_PERIOD_NS, BagWriter
 from fruitnerfpp_ros.core.synthetic.cameras import make_intrinsics, make_poses
 from fruitnerfpp_ros.core.synthetic.config import SynthConfig
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
 from fruitnerfpp_ros.core.synthetic.dataset_writer import GT_NAME, SPARSE_PLY_NAME, write_gt_fruits, write_sparse_ply
+from fruitnerfpp_ros.core.synthetic.lens import is_distorted, undistorted_pixel_grid
 from fruitnerfpp_ros.core.synthetic.preview import preview_view_indices, write_preview
 from fruitnerfpp_ros.core.synthetic.rasterizer import Renderer
 from fruitnerfpp_ros.core.synthetic.scene import build_scene, fruit_type_counts
@@ -98,8 +103,8 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
         progress: called with ``ProgressEvent(Phase.SYNTH_RENDER, view, views)`` after each view.
 
     Raises:
-        SynthError: unwritable output, bad bag path or storage.
-        ConfigError: unknown device.
+        SynthError: unwritable output, bad bag path or storage, unknown device, a lens distortion that cannot be
+            inverted over the image, or a row standoff inside the tree.
     """
     started = time.perf_counter()
     progress = progress or ignore_progress
@@ -110,20 +115,24 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     except ConfigError as err:
         raise SynthError(str(err)) from err
 
-    scene = build_scene(config)
+    scene = vary_scene_colours(build_scene(config), config.seed, config.appearance_variation)
     poses = make_poses(scene, config)
     K = make_intrinsics(config)
-    renderer = Renderer(scene, device)
+    pixel_grid = undistorted_pixel_grid(K) if is_distorted(K) else None  # checks the lens before writing
+    renderer = Renderer(scene, device, sample_appearance(config.seed, config.appearance_variation))
     n_fruits = len(scene.fruits)
-    seen = np.zeros(n_fruits + 1, dtype=np.int64)
-    preview_idx = set(preview_view_indices(config.views)) if preview is not None else set()
+    visible = np.zeros((config.views, n_fruits + 1), dtype=bool)
+    preview_idx = set(preview_view_indices(config.views, two_passes=config.trajectory == 'row')) \
+        if preview is not None else set()
     preview_rgb, preview_inst, preview_labels = [], [], []
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9C]))
     per_view = int(np.ceil(config.sparse_points / config.views)) if config.sparse_points else 0
     recorded = _noisy_poses(poses, config)
     pc_points, pc_colors = [], []
     frames = []
-    bag_ctx = BagWriter(bag, bag_storage) if bag is not None else contextlib.nullcontext()
+    bag_ctx = contextlib.nullcontext() if bag is None else BagWriter(
+        bag, bag_storage, image_format=config.bag_image_format, jpeg_quality=config.bag_jpeg_quality,
+        world_frame=config.world_frame)
     progress(ProgressEvent(Phase.SYNTH_RENDER, 0, config.views, f'{n_fruits} fruits'))
     with bag_ctx as bag_writer:
         for i, T in enumerate(poses):
@@ -132,12 +141,13 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
             write_rgb_png(out_dir / 'images' / name, view.rgb)
             write_uint16_png(out_dir / 'instances' / name, view.instance)
             write_mask_png(out_dir / 'semantics' / name, view.instance > 0)
-            seen += np.bincount(view.instance.reshape(-1).astype(np.int64), minlength=n_fruits + 1) > 0
+            visible[i] = np.bincount(view.instance.reshape(-1).astype(np.int64), minlength=n_fruits + 1) > 0
             stamp_ns = BAG_START_NS + i * FRAME_PERIOD_NS
             frames.append(FrameEntry(f'images/{name}', recorded[i], f'instances/{name}', f'semantics/{name}',
                                      stamp_ns=stamp_ns))
             if per_view:
-                pts, cols = _sample_surface(view.depth, view.rgb, T, K, per_view, scene.bound_radius, rng)
+                pts, cols = _sample_surface(view.depth, view.rgb, T, K, per_view, scene.bound_radius, rng,
+                                            pixel_grid)
                 pc_points.append(pts)
                 pc_colors.append(cols)
             if bag_writer is not None:
@@ -161,16 +171,17 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     }
     transforms_path = write_transforms(out_dir, TransformsFile(K, frames, ply_name, extra))
     gt_path = out_dir / GT_NAME
-    write_gt_fruits(gt_path, scene.fruits, seen[1:], {
+    write_gt_fruits(gt_path, scene.fruits, visible[:, 1:], {
         'units': 'm', 'frame': 'world (z up, ground z = 0), same as transforms.json',
-        'counts': {k: v for k, v in sorted(counts.items())}, 'n_views': config.views})
+        'counts': {k: v for k, v in sorted(counts.items())}, 'n_views': config.views,
+        'view_stamps_ns': [frame.stamp_ns for frame in frames]})
     preview_path = None
     if preview is not None:
         preview_path = Path(preview)
         write_preview(preview_path, preview_rgb, preview_inst, preview_labels)
     return SynthResult(out_dir, n_fruits, config.views, gt_path, transforms_path,
-                       Path(bag) if bag is not None else None, preview_path, int(np.count_nonzero(seen[1:])),
-                       time.perf_counter() - started)
+                       Path(bag) if bag is not None else None, preview_path,
+                       int(np.count_nonzero(visible[:, 1:].any(axis=0))), time.perf_counter() - started)
 
 
 def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> list[np.ndarray]:
@@ -191,8 +202,12 @@ def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> l
 
 
 def _sample_surface(depth: np.ndarray, rgb: np.ndarray, T_world_camera: np.ndarray, K: CameraIntrinsics, count: int,
-                    bound_radius: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """Back-project ``count`` random non-sky pixels of one view near the tree into world points + colours."""
+                    bound_radius: float, rng: np.random.Generator, pixel_grid: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Back-project ``count`` random non-sky pixels of one view near the tree into world points + colours.
+
+    ``pixel_grid``: [H * W, 2] undistorted normalised coordinates of the pixels of a distorted camera, else None.
+    """
     v, u = np.nonzero(np.isfinite(depth))
     if len(v) == 0:
         return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
@@ -200,7 +215,10 @@ def _sample_surface(depth: np.ndarray, rgb: np.ndarray, T_world_camera: np.ndarr
     pick.sort()
     v, u = v[pick], u[pick]
     z = depth[v, u].astype(np.float64)
-    d_opt = np.stack([(u + 0.5 - K.cx) / K.fl_x, (v + 0.5 - K.cy) / K.fl_y, np.ones_like(z)], axis=1)
+    if pixel_grid is None:
+        d_opt = np.stack([(u + 0.5 - K.cx) / K.fl_x, (v + 0.5 - K.cy) / K.fl_y, np.ones_like(z)], axis=1)
+    else:
+        d_opt = np.concatenate([pixel_grid[v * K.w + u], np.ones((len(z), 1))], axis=1)
     T_world_optical = T_world_camera @ T_OPENGL_OPTICAL
     points = T_world_optical[:3, 3] + (d_opt * z[:, None]) @ T_world_optical[:3, :3].T
     near = np.linalg.norm(points[:, :2], axis=1) < 1.5 * bound_radius

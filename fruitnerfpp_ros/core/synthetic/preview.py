@@ -23,9 +23,14 @@ def colorize_instances(ids: np.ndarray) -> np.ndarray:
     return rgb.astype(np.uint8)
 
 
-def preview_view_indices(n_views: int, rows: int = 3) -> list[int]:
-    """Evenly spaced view indices shown in the contact sheet."""
+def preview_view_indices(n_views: int, rows: int = 3, *, two_passes: bool = False) -> list[int]:
+    """View indices shown in the contact sheet: evenly spaced, or (``two_passes``, the row trajectory, whose passes
+    start and end with the tree out of view) around the middle of the first pass and the middle of the second."""
     rows = min(rows, n_views)
+    if two_passes and n_views >= 2:
+        first = (n_views + 1) // 2
+        middles = [first // 2, min(first - 1, first // 2 + max(1, first // 6)), first + (n_views - first) // 2]
+        return sorted(set(middles))[:rows]
     return sorted({int(round(i * (n_views - 1) / max(rows - 1, 1))) for i in range(rows)})
 
 

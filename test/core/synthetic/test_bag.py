@@ -11,7 +11,7 @@ from rosbags.highlevel import AnyReader
 from rosbags.typesys import Stores, get_typestore
 
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
-from fruitnerfpp_ros.core.synthetic import TOPICS, SynthConfig, generate_orchard
+from fruitnerfpp_ros.core.synthetic import COMPRESSED_IMAGE_TOPIC, TOPICS, SynthConfig, generate_orchard
 from fruitnerfpp_ros.errors import SynthError
 
 from .conftest import SmallScene
@@ -72,3 +72,43 @@ def test_bag_refuses_a_path_that_is_not_a_bag(tmp_path: Path) -> None:
     generate_orchard(config, tmp_path / 'ds', bag=tmp_path / 'b')
     generate_orchard(config, tmp_path / 'ds', bag=tmp_path / 'b')
     assert (tmp_path / 'b' / 'metadata.yaml').exists()
+
+
+def test_jpeg_bag_in_the_odom_frame(tmp_path: Path) -> None:
+    """--bag-image-format jpeg: CompressedImage on image_transport's topic, decodable by cv2.imdecode and by the
+    node's conversions; masks stay raw mono16; --world-frame names the pose header and the /tf parent."""
+    import cv2
+
+    from fruitnerfpp_ros.nodes.conversions import camera_model_from_camera_info, image_from_msg
+
+    config = SynthConfig(fruit='apple', count=10, views=3, resolution=(64, 48), seed=2, bag_image_format='jpeg',
+                         bag_jpeg_quality=95, world_frame='odom', distortion=(-0.1, 0.01, 0.0, 0.0, 0.0))
+    result = generate_orchard(config, tmp_path / 'ds', bag=tmp_path / 'bag')
+    expected = {**_TYPES, COMPRESSED_IMAGE_TOPIC: 'sensor_msgs/msg/CompressedImage'}
+    del expected[TOPICS['image']]
+    assert COMPRESSED_IMAGE_TOPIC == '/camera/image_raw/compressed'
+    tf = read_transforms(result.dataset_dir)
+    with AnyReader([result.bag_path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == expected
+        msgs: dict[str, list] = {}
+        for conn, _, raw in reader.messages():
+            msgs.setdefault(conn.topic, []).append(reader.deserialize(raw, conn.msgtype))
+    assert len(msgs[COMPRESSED_IMAGE_TOPIC]) == 3
+    for i, msg in enumerate(msgs[COMPRESSED_IMAGE_TOPIC]):
+        assert msg.format == 'rgb8; jpeg compressed bgr8' and msg.header.frame_id == 'camera_optical'
+        assert bytes(msg.data[:2]) == b'\xff\xd8'  # a JPEG stream
+        bgr = cv2.imdecode(np.frombuffer(msg.data.tobytes(), np.uint8), cv2.IMREAD_COLOR)
+        rgb = image_from_msg(msg, topic=COMPRESSED_IMAGE_TOPIC)
+        truth = cv2.imread(str(result.dataset_dir / tf.frames[i].file_path))
+        assert bgr.shape == truth.shape == (48, 64, 3)
+        np.testing.assert_array_equal(rgb, bgr[..., ::-1])
+        assert np.abs(bgr.astype(int) - truth).mean() < 8.0  # lossy (busy texture at 64 px), yet the same image
+    for mask in msgs[TOPICS['instance_mask']]:
+        assert mask.encoding == 'mono16'
+    for pose in msgs[TOPICS['pose']]:
+        assert pose.header.frame_id == 'odom'
+    for tf_msg in msgs[TOPICS['tf']]:
+        assert [(t.header.frame_id, t.child_frame_id) for t in tf_msg.transforms] == [('odom', 'base_link')]
+    camera = camera_model_from_camera_info(msgs[TOPICS['camera_info']][0])
+    assert camera.is_distorted and camera.distortion_model == 'plumb_bob'
+    assert camera.intrinsics.cx == tf.intrinsics.cx and camera.intrinsics.fl_y == tf.intrinsics.fl_y
