@@ -4,6 +4,14 @@ Example::
 
     fruitnerfpp synth --fruit apple --count 30 --views 32 --resolution 128 --out synth_apple \\
         --bag synth_apple_bag --preview synth_apple/preview.png
+
+    # a robot's drive along the row, a 4:3 distorted camera, a JPEG bag in the odom frame
+    fruitnerfpp synth --fruit apple --count 300 --views 64 --resolution 160 120 --trajectory row \\
+        --row-standoff 2.0 --camera-height 1.2 --camera-pitch 5 --fy-scale 1.02 --principal-offset 3 -2 \\
+        --distortion -0.15 0.03 0.001 -0.001 --bag-image-format jpeg --world-frame odom --out row --bag row_bag
+
+Every flag overrides the same-named field of :class:`~fruitnerfpp_ros.core.synthetic.SynthConfig` (and of
+``--config`` YAML); a flag left out keeps the YAML's or the default value.
 """
 
 from __future__ import annotations
@@ -11,7 +19,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable, NamedTuple
 
 from fruitnerfpp_ros.core.config_io import load_config
 from fruitnerfpp_ros.core.progress import ProgressEvent
@@ -20,13 +28,16 @@ from fruitnerfpp_ros.errors import ConfigError, SynthError
 __all__ = ['register', 'run', 'parse_resolution']
 
 
-def parse_resolution(text: str) -> tuple[int, int]:
-    """``'128'`` -> (128, 128); ``'160x120'`` -> (160, 120) (width x height).
+def parse_resolution(text: str | list[str]) -> tuple[int, int]:
+    """``'128'`` -> (128, 128); ``'160x120'`` or ``['160', '120']`` -> (160, 120) (width, height).
 
     Raises:
         SynthError: not a size.
     """
-    parts = text.lower().split('x')
+    shown = ' '.join(text) if isinstance(text, list) else text
+    parts = text if isinstance(text, list) else [text]
+    if len(parts) == 1:
+        parts = parts[0].lower().split('x')
     try:
         values = [int(p) for p in parts]
     except ValueError:
@@ -34,17 +45,76 @@ def parse_resolution(text: str) -> tuple[int, int]:
     if len(values) == 1:
         values = values * 2
     if len(values) != 2:
-        raise SynthError(f'--resolution: expected a size like 128 or 160x120, got {text!r}')
+        raise SynthError(f'--resolution: expected a size like 128, 160x120 or 160 120, got {shown!r}')
     return values[0], values[1]
 
 
-def _int(text: str | None, flag: str) -> int | None:
-    if text is None:
-        return None
+def _int(text: str, flag: str) -> int:
     try:
         return int(text)
     except ValueError:
         raise SynthError(f'{flag}: expected an integer, got {text!r}') from None
+
+
+def _float(text: str, flag: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise SynthError(f'{flag}: expected a number, got {text!r}') from None
+
+
+def _floats(texts: list[str], flag: str) -> tuple[float, ...]:
+    return tuple(_float(t, flag) for t in texts)
+
+
+class _Flag(NamedTuple):
+    """A command-line flag overriding SynthConfig ``field`` (``convert`` turns the parsed text into its value)."""
+
+    flag: str
+    field: str
+    convert: Callable[[Any, str], Any]
+    help: str
+    nargs: str | int | None = None
+    metavar: str | tuple[str, ...] | None = None
+
+
+def _text(value: str, flag: str) -> str:
+    return value
+
+
+_FLAGS = (
+    _Flag('--fruit', 'fruit', _text, 'apple, plum, lemon, pear, peach, mango or mixed (default apple)'),
+    _Flag('--count', 'count', _int, "number of fruits (default: the type's paper count, e.g. apple 283)"),
+    _Flag('--views', 'views', _int, 'number of camera views (default 32)'),
+    _Flag('--resolution', 'resolution', lambda v, f: parse_resolution(v),
+          'image size: 128 (square), WxH like 160x120, or W H (default 128)', '+', 'SIZE'),
+    _Flag('--trajectory', 'trajectory', _text, 'hemisphere (default) or row (a drive on both sides of the row)'),
+    _Flag('--seed', 'seed', _int, 'random seed (default 0)'),
+    _Flag('--device', 'device', _text, 'auto (default), cpu or cuda'),
+    _Flag('--fov', 'fov_deg', _float, 'field of view across the shorter image side, degrees (default 50)'),
+    _Flag('--leaf-scale', 'leaf_scale', _float, 'multiplier on leaf density (occlusion; default 1, 0 = no leaves)'),
+    _Flag('--cluster-scale', 'cluster_scale', _float, 'multiplier on touching-fruit clusters (default 1)'),
+    _Flag('--sparse-points', 'sparse_points', _int, 'points in sparse_pc.ply (default 4000)'),
+    _Flag('--row-standoff', 'row_standoff_m', _float, 'row: camera distance from the row centre line, m (default 2)'),
+    _Flag('--camera-height', 'camera_height_m', _float, 'row: camera height above the ground, m (default 1.2)'),
+    _Flag('--camera-pitch', 'camera_pitch_deg', _float, 'row: camera pitch above the horizon, degrees (default 5)'),
+    _Flag('--row-jitter', 'row_jitter', _float,
+          'row: scale of the smooth height/standoff/yaw/pitch/roll jitter of the drive (default 1, 0 = none)'),
+    _Flag('--row-length', 'row_length_m', _float,
+          'row: length of each pass, m (default: the tree enters and leaves the view)'),
+    _Flag('--fy-scale', 'fy_scale', _float, 'vertical focal length = horizontal x this (default 1)'),
+    _Flag('--principal-offset', 'principal_offset_px', _floats,
+          'principal point offset from the image centre, pixels (default 0 0)', 2, ('DX', 'DY')),
+    _Flag('--distortion', 'distortion', _floats,
+          "lens distortion K1 K2 P1 P2 [K3], OpenCV's plumb_bob (default none): images and masks are distorted",
+          '+', 'K'),
+    _Flag('--appearance-variation', 'appearance_variation', _float,
+          '0..1: lighting, colour temperature, ground, leaf and fruit colours vary with the seed (default 0)'),
+    _Flag('--bag-image-format', 'bag_image_format', _text,
+          'raw (Image rgb8, default) or jpeg (CompressedImage on /camera/image_raw/compressed)'),
+    _Flag('--jpeg-quality', 'bag_jpeg_quality', _int, 'JPEG quality 1..100 of --bag-image-format jpeg (default 90)'),
+    _Flag('--world-frame', 'world_frame', _text, 'fixed frame of the bag: pose header and /tf parent (default map)'),
+)
 
 
 def register(subparsers: Any) -> None:
@@ -53,13 +123,8 @@ def register(subparsers: Any) -> None:
         'synth', help='generate a synthetic fruit tree with ground truth',
         description='Render a procedural fruit tree to a transforms.json dataset (RGB, instance and semantic '
                     'masks), gt_fruits.json and sparse_pc.ply; optionally a rosbag2 recording and a preview.')
-    parser.add_argument('--fruit', help='apple, plum, lemon, pear, peach, mango or mixed (default apple)')
-    parser.add_argument('--count', help="number of fruits (default: the type's paper count, e.g. apple 283)")
-    parser.add_argument('--views', help='number of camera views (default 32)')
-    parser.add_argument('--resolution', help='image size: 128 (square) or WxH like 160x120 (default 128)')
-    parser.add_argument('--trajectory', help='hemisphere (default) or row')
-    parser.add_argument('--seed', help='random seed (default 0)')
-    parser.add_argument('--device', help='auto (default), cpu or cuda')
+    for flag in _FLAGS:
+        parser.add_argument(flag.flag, dest=flag.field, help=flag.help, nargs=flag.nargs, metavar=flag.metavar)
     parser.add_argument('--pose-noise', nargs=2, metavar=('METRES', 'DEGREES'),
                         help='odometry error: per-axis standard deviations of noise on the recorded camera positions '
                              'and orientations (images stay rendered from the true poses)')
@@ -72,9 +137,8 @@ def register(subparsers: Any) -> None:
     parser.set_defaults(func=run)
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run ``synth`` from parsed arguments; returns the exit code."""
-    from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
+def _config_from_args(args: argparse.Namespace) -> Any:
+    from fruitnerfpp_ros.core.synthetic import SynthConfig
 
     if args.config is not None:
         try:
@@ -84,27 +148,23 @@ def run(args: argparse.Namespace) -> int:
     else:
         base = SynthConfig()
     overrides: dict[str, Any] = {}
-    if args.fruit is not None:
-        overrides['fruit'] = args.fruit
-    if args.count is not None:
-        overrides['count'] = _int(args.count, '--count')
-    if args.views is not None:
-        overrides['views'] = _int(args.views, '--views')
-    if args.resolution is not None:
-        overrides['resolution'] = parse_resolution(args.resolution)
-    if args.trajectory is not None:
-        overrides['trajectory'] = args.trajectory
-    if args.seed is not None:
-        overrides['seed'] = _int(args.seed, '--seed')
-    if args.device is not None:
-        overrides['device'] = args.device
+    for flag in _FLAGS:
+        value = getattr(args, flag.field)
+        if value is not None:
+            overrides[flag.field] = flag.convert(value, flag.flag)
     if args.pose_noise is not None:
         try:
             overrides['pose_noise_m'], overrides['pose_noise_deg'] = (float(v) for v in args.pose_noise)
         except ValueError:
             raise SynthError(f'--pose-noise: expected two numbers (metres, degrees), got {args.pose_noise}') from None
-    config = dataclasses.replace(base, **overrides)
+    return dataclasses.replace(base, **overrides)
 
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``synth`` from parsed arguments; returns the exit code."""
+    from fruitnerfpp_ros.core.synthetic import generate_orchard
+
+    config = _config_from_args(args)
     bar: Any = None
 
     def on_progress(event: ProgressEvent) -> None:

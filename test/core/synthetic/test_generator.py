@@ -1,4 +1,4 @@
-"""generate_orchard outputs: the tiny training scene, the row trajectory, the preview, the CLI."""
+"""generate_orchard outputs: the tiny training scene, the preview, the CLI and its flags."""
 
 from __future__ import annotations
 
@@ -8,11 +8,14 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from fruitnerfpp_ros.cli.main import main
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
-from fruitnerfpp_ros.core.geometry import optical_from_opengl
+from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
+
+from .conftest import SmallScene
 
 
 def _read_ply(path: Path) -> np.ndarray:
@@ -45,20 +48,6 @@ def test_tiny_training_scene_shows_every_fruit(tiny_apple_dataset: Path) -> None
     assert np.all(centers.min(0) > points.min(0)) and np.all(centers.max(0) < points.max(0))
 
 
-def test_row_trajectory_drives_along_both_sides(tmp_path: Path) -> None:
-    result = generate_orchard(SynthConfig(fruit='lemon', count=15, views=8, resolution=(64, 48),
-                                          trajectory='row', seed=2), tmp_path)
-    tf = read_transforms(tmp_path)
-    eyes = np.array([f.T_world_camera[:3, 3] for f in tf.frames])
-    forward = np.array([optical_from_opengl(f.T_world_camera)[:3, 2] for f in tf.frames])
-    assert np.all(eyes[:4, 1] < 0) and np.all(eyes[4:, 1] > 0)            # both sides of the row
-    assert np.all(np.diff(eyes[:4, 0]) > 0) and np.all(np.diff(eyes[4:, 0]) < 0)  # drive there and back
-    assert np.all(np.sign(forward[:, 1]) == -np.sign(eyes[:, 1]))         # facing the tree
-    assert np.all(np.abs(forward[:, 1]) > 0.99)                             # perpendicular to the row
-    assert np.ptp(eyes[:, 2]) < 0.1                                          # constant mast height
-    assert result.n_fruits_visible >= 13
-
-
 def test_cli_writes_dataset_bag_and_preview(tmp_path: Path) -> None:
     config = Path(__file__).resolve().parents[3] / 'config' / 'synth.yaml'
     code = main(['synth', '--quiet', '--config', str(config), '--fruit', 'peach', '--count', '6', '--views', '4',
@@ -75,6 +64,32 @@ def test_cli_writes_dataset_bag_and_preview(tmp_path: Path) -> None:
         assert f.read(8) == b'\x89PNG\r\n\x1a\n' and struct.unpack('>II', f.read(16)[8:16]) == (120, 96)
 
 
+def test_cli_flags_reach_every_new_option(tmp_path: Path) -> None:
+    code = main(['synth', '--quiet', '--fruit', 'plum', '--count', '8', '--views', '4', '--resolution', '40', '30',
+                 '--trajectory', 'row', '--row-standoff', '1.6', '--camera-height', '0.9', '--camera-pitch', '3',
+                 '--row-jitter', '0', '--row-length', '2.5', '--fov', '60', '--fy-scale', '1.02',
+                 '--principal-offset', '1.5', '-1', '--distortion', '-0.05', '0.01', '0.001', '0',
+                 '--appearance-variation', '0.5', '--leaf-scale', '0.5', '--cluster-scale', '0', '--sparse-points',
+                 '100', '--bag-image-format', 'jpeg', '--jpeg-quality', '80', '--world-frame', 'odom',
+                 '--out', str(tmp_path / 'ds'), '--bag', str(tmp_path / 'bag')])
+    assert code == 0
+    tf = read_transforms(tmp_path / 'ds')
+    K = tf.intrinsics
+    assert (K.w, K.h, K.cx, K.cy, K.fl_y) == (40, 30, 21.5, 14.0, pytest.approx(1.02 * K.fl_x))
+    assert K.distortion == {'k1': -0.05, 'k2': 0.01, 'p1': 0.001, 'p2': 0.0}
+    recorded = tf.extra['generator']['config']
+    assert {k: recorded[k] for k in ('row_standoff_m', 'camera_height_m', 'camera_pitch_deg', 'row_jitter',
+                                     'row_length_m', 'fov_deg', 'appearance_variation', 'leaf_scale',
+                                     'cluster_scale', 'sparse_points', 'bag_image_format', 'bag_jpeg_quality',
+                                     'world_frame', 'principal_offset_px', 'distortion')} == {
+        'row_standoff_m': 1.6, 'camera_height_m': 0.9, 'camera_pitch_deg': 3.0, 'row_jitter': 0.0,
+        'row_length_m': 2.5, 'fov_deg': 60.0, 'appearance_variation': 0.5, 'leaf_scale': 0.5, 'cluster_scale': 0.0,
+        'sparse_points': 100, 'bag_image_format': 'jpeg', 'bag_jpeg_quality': 80, 'world_frame': 'odom',
+        'principal_offset_px': [1.5, -1.0], 'distortion': [-0.05, 0.01, 0.001, 0.0, 0.0]}
+    eyes = np.array([f.T_world_camera[:3, 3] for f in tf.frames])
+    np.testing.assert_allclose(eyes, [[-1.25, -1.6, 0.9], [1.25, -1.6, 0.9], [1.25, 1.6, 0.9], [-1.25, 1.6, 0.9]])
+
+
 def test_progress_events_and_stale_frames_removed(tmp_path: Path) -> None:
     events = []
     generate_orchard(SynthConfig(count=3, views=3, resolution=(16, 16)), tmp_path, progress=events.append)
@@ -82,3 +97,25 @@ def test_progress_events_and_stale_frames_removed(tmp_path: Path) -> None:
     result = generate_orchard(SynthConfig(count=3, views=1, resolution=(16, 16)), tmp_path)
     assert sorted(p.name for p in (tmp_path / 'images').iterdir()) == ['0000.png']
     assert len(read_transforms(tmp_path).frames) == 1 and result.bag_path is None
+
+
+def test_views_visible_lists_every_view_showing_the_fruit(small_scene: SmallScene) -> None:
+    """gt_fruits.json: views_visible = the views whose instance mask holds the fruit (all views, no split);
+    n_views_visible = their number; view_stamps_ns = the frames' stamps."""
+    dataset = small_scene.result.dataset_dir
+    tf = read_transforms(dataset)
+    data = json.loads((dataset / 'gt_fruits.json').read_text())
+    assert data['view_stamps_ns'] == [f.stamp_ns for f in tf.frames]
+    in_masks = {}
+    for i, frame in enumerate(tf.frames):
+        ids = np.unique(cv2.imread(str(dataset / frame.instance_path), cv2.IMREAD_UNCHANGED))
+        for fruit_id in ids[ids > 0]:
+            in_masks.setdefault(int(fruit_id), []).append(i)
+    for fruit in data['fruits']:
+        assert fruit['views_visible'] == in_masks.get(fruit['id'], [])
+        assert fruit['n_views_visible'] == len(fruit['views_visible'])
+    # Evaluation on a training split: a fruit shown only by held-out views is unseen.
+    some = next(f for f in data['fruits'] if 0 < f['n_views_visible'] < len(tf.frames))
+    others = [v for v in range(len(tf.frames)) if v not in some['views_visible']]
+    gt = load_ground_truth(dataset / 'gt_fruits.json', train_views=others)
+    assert not gt.seen[list(gt.ids).index(some['id'])]
