@@ -2,6 +2,10 @@
 
 Instance ids are per-image labels (0 = background): nothing here assumes the same fruit has the same id in two
 views. Semantic masks are read when the frames name them, else derived from the instance masks (fruit = id > 0).
+
+Distorted cameras (``k1``... in transforms.json, ``camera_model`` OPENCV or OPENCV_FISHEYE) are undistorted here,
+keeping their camera matrix; pixels that then hold no data, and pixels a frame's ``mask_path`` marks 0, are
+invalid: ``SceneDataset.valid_masks`` marks them, and the masks hold no fruit there.
 """
 
 from __future__ import annotations
@@ -13,7 +17,8 @@ import cv2
 import numpy as np
 import torch
 
-from fruitnerfpp_ros.core.data.transforms_format import TransformsFile, read_transforms
+from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, TransformsFile, read_transforms
+from fruitnerfpp_ros.core.data.undistortion import LensUndistorter
 from fruitnerfpp_ros.errors import DatasetError
 
 __all__ = ['SceneDataset', 'load_dataset', 'split_indices']
@@ -34,6 +39,8 @@ class SceneDataset:
         eval_indices: [V_eval] int64 held-out view indices.
         ply_path: the sparse point cloud named by ``ply_file_path`` when it exists, else None.
         file_paths: the V images as transforms.json names them.
+        valid_masks: [V, H, W] bool, False where a pixel holds no data (an undistorted image's border, a frame's
+            ``mask_path``); None when every pixel is valid.
     """
 
     dataset_dir: Path
@@ -46,6 +53,7 @@ class SceneDataset:
     eval_indices: torch.Tensor
     ply_path: Path | None
     file_paths: tuple[str, ...] = ()
+    valid_masks: torch.Tensor | None = None
 
     @property
     def num_views(self) -> int:
@@ -100,6 +108,27 @@ def _read_label_mask(path: Path, what: str) -> np.ndarray:
     return mask.astype(np.int32)
 
 
+_CAMERA_MODELS = {'OPENCV': 'plumb_bob', 'PINHOLE': 'plumb_bob', 'SIMPLE_PINHOLE': 'plumb_bob',
+                  'OPENCV_FISHEYE': 'equidistant'}
+
+
+class _Undistorters:
+    """One :class:`LensUndistorter` per distinct distorted camera of a dataset (built on first use)."""
+
+    def __init__(self, camera_model: str, where: Path) -> None:
+        if camera_model not in _CAMERA_MODELS:
+            raise DatasetError(f'{where}: camera_model {camera_model!r} is not supported; expected one of '
+                               f'{", ".join(_CAMERA_MODELS)}')
+        self._model = _CAMERA_MODELS[camera_model]
+        self._cache: dict[tuple, LensUndistorter | None] = {}
+
+    def __call__(self, cam: CameraIntrinsics) -> LensUndistorter | None:
+        key = (cam.fl_x, cam.fl_y, cam.cx, cam.cy, cam.w, cam.h, tuple(sorted(cam.distortion.items())))
+        if key not in self._cache:
+            self._cache[key] = LensUndistorter.for_intrinsics(cam, self._model)
+        return self._cache[key]
+
+
 def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instances: bool = True) -> SceneDataset:
     """Read a transforms.json dataset into tensors.
 
@@ -114,7 +143,8 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
     """
     dataset_dir = Path(dataset_dir)
     transforms: TransformsFile = read_transforms(dataset_dir)
-    images, instances, semantics, intrinsics, poses = [], [], [], [], []
+    undistorter_of = _Undistorters(str(transforms.extra.get('camera_model', 'OPENCV')), dataset_dir / 'transforms.json')
+    images, instances, semantics, intrinsics, poses, valids = [], [], [], [], [], []
     shape: tuple[int, int] | None = None
     for index, frame in enumerate(transforms.frames):
         image_path = dataset_dir / frame.file_path
@@ -148,7 +178,22 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
                                    f'{size[1]}x{size[0]}')
         else:
             semantic = instance > 0
+        valid = np.ones(size, bool)
+        if frame.mask_path is not None:
+            valid = _read_label_mask(dataset_dir / frame.mask_path, 'pixel mask') > 0
+            if valid.shape != size:
+                raise DatasetError(f'{dataset_dir / frame.mask_path}: pixel mask is {valid.shape[1]}x'
+                                   f'{valid.shape[0]} but image {image_path} is {size[1]}x{size[0]}')
+        undistorter = undistorter_of(cam)
+        if undistorter is not None:
+            rgb, instance = undistorter.image(rgb), undistorter.labels(instance)
+            semantic = undistorter.labels(semantic.astype(np.uint8)) > 0
+            valid = undistorter.labels(valid.astype(np.uint8)) > 0
+        if not valid.all():
+            instance = np.where(valid, instance, 0)
+            semantic = semantic & valid
         images.append(rgb)
+        valids.append(valid)
         instances.append(instance)
         semantics.append(semantic)
         intrinsics.append((cam.fl_x, cam.fl_y, cam.cx, cam.cy))
@@ -168,4 +213,5 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
         eval_indices=torch.from_numpy(held.astype(np.int64)),
         ply_path=ply_path,
         file_paths=tuple(frame.file_path for frame in transforms.frames),
+        valid_masks=None if all(v.all() for v in valids) else torch.from_numpy(np.stack(valids)),
     )

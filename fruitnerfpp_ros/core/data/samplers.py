@@ -17,22 +17,35 @@ __all__ = ['UniformPixelSampler', 'GroupInstanceSampler', 'ViewFruits', 'index_v
 
 
 class UniformPixelSampler:
-    """Pixels drawn uniformly over the given views (with replacement).
+    """Pixels drawn uniformly over the valid pixels of the given views (with replacement).
 
     With ``fruit_masks`` and ``fruit_fraction > 0``, that fraction of every batch is drawn uniformly from the fruit
     pixels instead (fruit covers a few percent of an orchard image: without this a batch holds a handful of them).
+    The uniform part comes first in every batch (:meth:`num_uniform`).
+
+    Args:
+        views: [V'] view indices to draw from.
+        height, width: image size.
+        fruit_masks: [V, H, W] bool fruit pixels (already False where a pixel is invalid), or None.
+        fruit_fraction: share of a batch drawn from fruit pixels.
+        valid_masks: [V, H, W] bool, False on pixels without data (never drawn); None = all valid.
     """
 
     def __init__(self, views: torch.Tensor, height: int, width: int, *, fruit_masks: torch.Tensor | None = None,
-                 fruit_fraction: float = 0.0) -> None:
+                 fruit_fraction: float = 0.0, valid_masks: torch.Tensor | None = None) -> None:
         if len(views) == 0:
             raise DatasetError('no training views to sample rays from')
         self._views = views.to(torch.int64)
         self._height = height
         self._width = width
+        self._valid = None if valid_masks is None else valid_masks.reshape(len(valid_masks), -1).to(torch.bool)
+        if self._valid is not None and not bool(self._valid[self._views].any()):
+            raise DatasetError('no valid pixel in the training views (every pixel is masked out)')
         self._fruit_pixels = torch.zeros(0, dtype=torch.int64)
         if fruit_masks is not None and fruit_fraction > 0:
             flat = fruit_masks[self._views].reshape(len(self._views), -1)
+            if self._valid is not None:
+                flat = flat & self._valid[self._views]
             hits = torch.nonzero(flat)  # [M, 2]: (position in views, flat pixel)
             self._fruit_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
         self._fruit_fraction = fruit_fraction if len(self._fruit_pixels) else 0.0
@@ -41,12 +54,26 @@ class UniformPixelSampler:
         """How many of a ``batch_size`` batch are drawn uniformly: they come first, the fruit pixels after."""
         return batch_size - int(round(batch_size * self._fruit_fraction))
 
+    def _uniform(self, count: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """``count`` (view, flat pixel) pairs, uniform over the valid pixels (rejection sampling: invalid draws are
+        drawn again; without invalid pixels the first draw is the batch)."""
+        views, pixels = [], []
+        need = count
+        while need > 0:
+            view = self._views[torch.randint(len(self._views), (need,), generator=generator)]
+            pixel = torch.randint(self._height * self._width, (need,), generator=generator)
+            if self._valid is not None:
+                keep = self._valid[view, pixel]
+                view, pixel = view[keep], pixel[keep]
+            views.append(view)
+            pixels.append(pixel)
+            need -= len(view)
+        return torch.cat(views), torch.cat(pixels)
+
     def sample(self, batch_size: int, generator: torch.Generator) -> PixelBatch:
         n_uniform = self.num_uniform(batch_size)
         n_fruit = batch_size - n_uniform
-        pick = torch.randint(len(self._views), (n_uniform,), generator=generator)
-        flat = torch.randint(self._height * self._width, (n_uniform,), generator=generator)
-        view, pixel = self._views[pick], flat
+        view, pixel = self._uniform(n_uniform, generator)
         if n_fruit:
             chosen = self._fruit_pixels[torch.randint(len(self._fruit_pixels), (n_fruit,), generator=generator)]
             view = torch.cat([view, chosen // (self._height * self._width)])

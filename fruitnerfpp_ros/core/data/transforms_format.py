@@ -6,6 +6,7 @@ Layout of a dataset directory::
     images/0000.png           # RGB
     instances/0000.png        # 16-bit instance ids, 0 = background, k = fruit k (per-image labels)
     semantics/0000.png        # fruit = 255, rest = 0 (optional: derived from instances when absent)
+    masks/0000.png            # optional pixel mask (``mask_path``, 0 = no data), e.g. an undistorted frame's border
     gt_fruits.json            # optional ground truth (synthetic data)
     sparse_pc.ply             # optional sparse geometry (``ply_file_path``), used for scene bounds
 
@@ -38,7 +39,8 @@ _DISTORTION_KEYS = ('k1', 'k2', 'k3', 'k4', 'p1', 'p2')
 class CameraIntrinsics:
     """Pinhole intrinsics in pixels, principal point with the top-left image corner at (0, 0).
 
-    Distortion coefficients are kept for completeness; datasets written by this package are undistorted.
+    ``distortion``: nerfstudio's coefficient keys (k1, k2, k3, k4, p1, p2) when the images are distorted;
+    :func:`fruitnerfpp_ros.core.data.dataset.load_dataset` undoes the distortion (core/data/undistortion.py).
     """
 
     fl_x: float
@@ -82,6 +84,7 @@ class FrameEntry:
         semantic_path: fruit mask PNG (255 = fruit), relative path, or None.
         intrinsics: per-frame intrinsics overriding the global ones, or None.
         stamp_ns: acquisition time in nanoseconds (ROS keyframes), or None.
+        mask_path: nerfstudio's pixel mask (0 = no data: never trained on or evaluated), relative path, or None.
     """
 
     file_path: str
@@ -90,6 +93,7 @@ class FrameEntry:
     semantic_path: str | None = None
     intrinsics: CameraIntrinsics | None = None
     stamp_ns: int | None = None
+    mask_path: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {'file_path': self.file_path,
@@ -102,6 +106,8 @@ class FrameEntry:
             out.update(self.intrinsics.to_json())
         if self.stamp_ns is not None:
             out['stamp_ns'] = int(self.stamp_ns)
+        if self.mask_path is not None:
+            out['mask_path'] = self.mask_path
         return out
 
 
@@ -176,7 +182,7 @@ def read_transforms(dataset_dir: str | Path) -> TransformsFile:
         if own is None and intrinsics is None:
             raise DatasetError(f'{where} ({raw["file_path"]}): no intrinsics (neither global nor per frame)')
         frames.append(FrameEntry(str(raw['file_path']), T, raw.get('instance_path'), raw.get('semantic_path'),
-                                 own, raw.get('stamp_ns')))
+                                 own, raw.get('stamp_ns'), raw.get('mask_path')))
     known = set(_INTRINSIC_KEYS) | set(_DISTORTION_KEYS) | {'frames', 'ply_file_path'}
     extra = {k: v for k, v in data.items() if k not in known}
     return TransformsFile(intrinsics, frames, data.get('ply_file_path'), extra)
