@@ -162,7 +162,10 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     from fruitnerfpp_ros.core.clustering.workers import partition_pool
     from fruitnerfpp_ros.core.pipeline import run_pipeline
 
+    from fruitnerfpp_ros.core.device import use_cpu_threads
+
     train_config = resolve_train_config(args.preset, args.config, section='train')
+    use_cpu_threads(train_config.cpu_threads, args.device)
     cluster_config = _cluster_config(args, args.config)
     with partition_pool(cluster_config.n_jobs) as pool:
         result = run_pipeline(args.data_dir, args.out, train_config=train_config,

@@ -40,9 +40,11 @@ def resolve_train_config(preset: str, config_file: str | Path | None, *, section
 
 
 def run(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.core.device import use_cpu_threads
     from fruitnerfpp_ros.core.training import train
 
     config = resolve_train_config(args.preset, args.config)
+    use_cpu_threads(config.cpu_threads, args.device)
     summary = train(args.dataset, args.out, config, device=args.device, resume=args.resume, show_progress=True)
     for stage in summary.stages:
         print(f'{stage.name:9s} {stage.steps:6d} steps  {stage.wall_s:7.1f} s  '

@@ -6,7 +6,7 @@ import torch
 
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['resolve_device']
+__all__ = ['resolve_device', 'use_cpu_threads']
 
 
 def resolve_device(name: str = 'auto') -> torch.device:
@@ -24,3 +24,13 @@ def resolve_device(name: str = 'auto') -> torch.device:
     if name == 'cpu':
         return torch.device('cpu')
     raise ConfigError(f'unknown device {name!r}; expected auto, cpu, cuda or cuda:N')
+
+
+def use_cpu_threads(count: int, device: str = 'auto') -> None:
+    """Set torch's CPU thread count to ``count`` when work will run on the CPU (``count`` 0: leave it).
+
+    For the owners of a process only (CLI commands, nodes): the library never changes process-wide settings;
+    ``TrainConfig.cpu_threads`` is the value they pass.
+    """
+    if count > 0 and resolve_device(device).type == 'cpu':
+        torch.set_num_threads(count)

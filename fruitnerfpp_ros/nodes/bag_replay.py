@@ -232,9 +232,11 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
                        f'{settings.min_keyframes}')
     from fruitnerfpp_ros.core.clustering.workers import partition_pool
     from fruitnerfpp_ros.core.pipeline import run_pipeline
+    from fruitnerfpp_ros.core.device import use_cpu_threads
     configs = pipeline_configs(settings)
     for warning in configs.warnings:
         log(LogLevel.WARN, warning)
+    use_cpu_threads(configs.train.cpu_threads, settings.device)  # the replay owns its process
     with partition_pool(configs.cluster.n_jobs) as pool:  # the replay owns the clustering workers
         result = run_pipeline(keyframes_dir, run_dir, train_config=configs.train,
                               export_config=configs.export, cluster_config=configs.cluster,

@@ -249,9 +249,11 @@ class FruitCounterNode(Node):
         try:
             from fruitnerfpp_ros.core.clustering.workers import partition_pool
             from fruitnerfpp_ros.core.pipeline import run_pipeline
+            from fruitnerfpp_ros.core.device import use_cpu_threads
             configs = pipeline_configs(self.settings)
             for warning in configs.warnings:
                 self.get_logger().warning(warning)
+            use_cpu_threads(configs.train.cpu_threads, self.settings.device)  # the node owns its process
             with partition_pool(configs.cluster.n_jobs) as pool:  # workers live for this run only
                 result = run_pipeline(snapshot.dataset_dir, self.run_dir / f'train_{index:03d}',
                                       train_config=configs.train, export_config=configs.export,

@@ -2,45 +2,37 @@
 
 One geometry hash grid feeds the density MLP, which outputs the density and a geometry feature vector. The colour
 head reads that feature plus the SH-encoded view direction. The semantic head and the instance head read the
-feature **detached**, so their losses never change density; each adds its own small hash grid over the raw
-position (fruit boundaries and fruits next to each other need features finer than the 15-d geometry feature
-carries, above all early in training).
+feature **detached**, and the sample positions detached, so their losses never change density nor the camera
+poses; each adds its own small hash grid over the raw position (fruit boundaries and fruits next to each other
+need features finer than the 15-d geometry feature carries, above all early in training).
 
 Points are normalised per axis to the unit cube of the scene box; density is returned in 1/m and is zero
-outside the box. Space outside the box (ground, sky) is the optional outer field's (outer_field.py).
+outside the box. Rays that leave the box see a learned background colour.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from dataclasses import field as _field
 from typing import Iterator, NamedTuple
 
 import numpy as np
 import torch
 from torch import nn
 
-from fruitnerfpp_ros.core.fields.hash_grid import HashGridEncoding
-from fruitnerfpp_ros.core.fields.mlp import make_mlp, spherical_harmonics, trunc_exp
-from fruitnerfpp_ros.core.fields.outer_field import OuterField
+from fruitnerfpp_ros.core.fields.hash_grid import HashGridConfig, HashGridEncoding
+from fruitnerfpp_ros.core.fields.mlp import init_mlp, make_mlp, spherical_harmonics, trunc_exp
 from fruitnerfpp_ros.core.fields.query import FieldQuery
 
-__all__ = ['FieldConfig', 'FruitField', 'GeometryOutput']
+__all__ = ['FieldConfig', 'FruitField', 'GeometryOutput', 'HashGridConfig']
 
 
 @dataclass(frozen=True)
 class FieldConfig:
     """Sizes of the encodings and heads of :class:`FruitField`."""
 
-    num_levels: int = 16
-    """Geometry hash grid: number of resolution levels."""
-    features_per_level: int = 2
-    """Geometry hash grid: features per level."""
-    log2_table_size: int = 19
-    """Geometry hash grid: log2 of entries per level."""
-    base_resolution: int = 16
-    """Geometry hash grid: coarsest resolution over the scene box."""
-    max_resolution: int = 2048
-    """Geometry hash grid: finest resolution over the scene box."""
+    geometry_grid: HashGridConfig = _field(default_factory=HashGridConfig)
+    """Hash grid of the density / colour field."""
     hidden_dim: int = 64
     """Width of the density, colour and semantic MLPs."""
     density_layers: int = 1
@@ -51,26 +43,16 @@ class FieldConfig:
     """Hidden layers of the colour MLP."""
     sh_degree: int = 4
     """Spherical-harmonic degree (1..4) of the view-direction encoding."""
+    semantic_grid: HashGridConfig = _field(default_factory=lambda: HashGridConfig(
+        num_levels=8, log2_table_size=17, base_resolution=16, max_resolution=512))
+    """The semantic head's own position encoding, next to the detached geometry feature."""
     semantic_layers: int = 2
     """Hidden layers of the semantic MLP."""
-    semantic_num_levels: int = 8
-    """Semantic hash grid (the head's own position encoding, next to the detached geometry feature): levels."""
-    semantic_log2_table_size: int = 17
-    """Semantic hash grid: log2 of entries per level."""
-    semantic_base_resolution: int = 16
-    """Semantic hash grid: coarsest resolution."""
-    semantic_max_resolution: int = 512
-    """Semantic hash grid: finest resolution."""
     embedding_dim: int = 32
     """D, the instance embedding size (the paper needs D >= 16 for apples)."""
-    instance_num_levels: int = 8
-    """Instance hash grid: number of levels."""
-    instance_log2_table_size: int = 17
-    """Instance hash grid: log2 of entries per level."""
-    instance_base_resolution: int = 16
-    """Instance hash grid: coarsest resolution."""
-    instance_max_resolution: int = 512
-    """Instance hash grid: finest resolution."""
+    instance_grid: HashGridConfig = _field(default_factory=lambda: HashGridConfig(
+        num_levels=8, log2_table_size=17, base_resolution=16, max_resolution=512))
+    """The instance head's own position encoding."""
     instance_hidden_dim: int = 64
     """Width of the instance MLP."""
     instance_layers: int = 2
@@ -80,18 +62,6 @@ class FieldConfig:
     density_bias: float | None = None
     """Initial bias of the density output (density = exp(raw) 1/m); None = the trainer's choice: half the
     occupancy threshold's density at the run's marching step, so untrained space starts just below occupied."""
-    outer_samples: int = 0
-    """Samples per ray of the outer field that models the ground and sky beyond the scene box (outer_field.py),
-    spaced evenly in inverse distance; 0 = no outer field, a background colour only."""
-    outer_far_factor: float = 20.0
-    """The outer field is rendered from where a ray leaves the box to this many box diagonals beyond."""
-    outer_num_levels: int = 4
-    """Outer field hash grid (over the contracted cube): levels. Kept coarse on purpose: 8 levels up to 512
-    painted the tree onto the shell behind the box and left the box empty (docs/results/tiny_preset.md)."""
-    outer_log2_table_size: int = 17
-    """Outer field hash grid: log2 of entries per level."""
-    outer_max_resolution: int = 64
-    """Outer field hash grid: finest resolution over the contracted cube (the box spans half of it)."""
 
 
 class GeometryOutput(NamedTuple):
@@ -105,46 +75,44 @@ class FruitField(nn.Module):
     """Neural field over the box ``aabb`` [2, 3] (metres, world frame).
 
     Satisfies :class:`fruitnerfpp_ros.core.fields.query.QueryableField`.
+
+    Args:
+        config: encodings and heads.
+        aabb: [2, 3] scene box, metres.
+        generator: random source of every initial weight (None: torch's global one). The trainer passes its own,
+            so a run is reproducible without seeding the process.
     """
 
-    def __init__(self, config: FieldConfig, aabb: np.ndarray | torch.Tensor) -> None:
+    def __init__(self, config: FieldConfig, aabb: np.ndarray | torch.Tensor,
+                 generator: torch.Generator | None = None) -> None:
         super().__init__()
         self.config = config
         self.register_buffer('aabb', torch.as_tensor(np.asarray(aabb, dtype=np.float32)).clone())
         c = config
-        self.encoding = HashGridEncoding(num_levels=c.num_levels, features_per_level=c.features_per_level,
-                                         log2_table_size=c.log2_table_size, base_resolution=c.base_resolution,
-                                         max_resolution=c.max_resolution)
+        self.encoding = HashGridEncoding(c.geometry_grid, generator=generator)
         self.density_mlp = make_mlp(self.encoding.output_dim, c.hidden_dim, c.density_layers, 1 + c.geo_feature_dim)
-        if c.density_bias is not None:
-            with torch.no_grad():
-                self.density_mlp[-1].bias[0].fill_(c.density_bias)
         self.color_mlp = make_mlp(c.geo_feature_dim + c.sh_degree ** 2, c.hidden_dim, c.color_layers, 3)
         # Colour of rays leaving the box (sky, distant ground) as a function of the ray direction.
         self.background = nn.Linear(c.sh_degree ** 2, 3)
-        nn.init.zeros_(self.background.weight)
-        nn.init.zeros_(self.background.bias)
-        self.outer = None if c.outer_samples <= 0 else OuterField(
-            self.aabb, num_levels=c.outer_num_levels, log2_table_size=c.outer_log2_table_size,
-            base_resolution=c.base_resolution, max_resolution=c.outer_max_resolution, hidden_dim=c.hidden_dim,
-            sh_degree=c.sh_degree)
-        self.semantic_encoding = HashGridEncoding(
-            num_levels=c.semantic_num_levels, features_per_level=2, log2_table_size=c.semantic_log2_table_size,
-            base_resolution=c.semantic_base_resolution, max_resolution=c.semantic_max_resolution)
+        self.semantic_encoding = HashGridEncoding(c.semantic_grid, generator=generator)
         self.semantic_mlp = make_mlp(self.semantic_encoding.output_dim + c.geo_feature_dim, c.hidden_dim,
                                      c.semantic_layers, 1)
-        self.instance_encoding = HashGridEncoding(
-            num_levels=c.instance_num_levels, features_per_level=2, log2_table_size=c.instance_log2_table_size,
-            base_resolution=c.instance_base_resolution, max_resolution=c.instance_max_resolution)
+        self.instance_encoding = HashGridEncoding(c.instance_grid, generator=generator)
         self.instance_mlp = make_mlp(self.instance_encoding.output_dim + c.geo_feature_dim, c.instance_hidden_dim,
                                      c.instance_layers, c.embedding_dim)
+        for mlp in (self.density_mlp, self.color_mlp, self.semantic_mlp, self.instance_mlp):
+            init_mlp(mlp, generator)
+        with torch.no_grad():
+            nn.init.zeros_(self.background.weight)
+            nn.init.zeros_(self.background.bias)
+            if c.density_bias is not None:
+                self.density_mlp[-1].bias[0].fill_(c.density_bias)
 
     # -- parameter groups of the cascaded schedule ------------------------------------------------------------
     def geometry_parameters(self) -> Iterator[nn.Parameter]:
-        """Density + colour (+ background colour and outer field): trained in stages 1 and 2."""
-        for module in (self.encoding, self.density_mlp, self.color_mlp, self.background, self.outer):
-            if module is not None:
-                yield from module.parameters()
+        """Density + colour (+ background colour): trained in stages 1 and 2."""
+        for module in (self.encoding, self.density_mlp, self.color_mlp, self.background):
+            yield from module.parameters()
 
     def semantic_parameters(self) -> Iterator[nn.Parameter]:
         """The semantic encoding and head: trained in stage 2."""
@@ -198,14 +166,19 @@ class FruitField(nn.Module):
             return geo.density, torch.sigmoid(self.fruit_logit(xyz, geo.features))
 
     def fruit_logit(self, xyz: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
-        """Fruit logit [N] at world points [N, 3] from the head's own encoding and the detached geometry features
-        (no gradient reaches density)."""
-        inputs = torch.cat([self.semantic_encoding(self.normalize(xyz)).to(features.dtype), features.detach()], -1)
+        """Fruit logit [N] at world points [N, 3] from the head's own encoding and the detached geometry features.
+
+        Positions and features are detached: no gradient of the semantic loss reaches density or, through the
+        sample positions, the camera poses.
+        """
+        inputs = torch.cat([self.semantic_encoding(self.normalize(xyz.detach())).to(features.dtype),
+                            features.detach()], -1)
         return self.semantic_mlp(inputs)[:, 0].float()
 
     def embedding(self, xyz: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
-        """Raw (not normalised) instance embedding [N, D]; geometry features are detached."""
-        inputs = torch.cat([self.instance_encoding(self.normalize(xyz)).to(features.dtype), features.detach()], -1)
+        """Raw (not normalised) instance embedding [N, D]; positions and geometry features are detached."""
+        inputs = torch.cat([self.instance_encoding(self.normalize(xyz.detach())).to(features.dtype),
+                            features.detach()], -1)
         return self.instance_mlp(inputs).float()
 
     @torch.no_grad()

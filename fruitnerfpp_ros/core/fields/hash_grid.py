@@ -7,14 +7,48 @@ vertices. All levels are looked up in one vectorised gather with trilinear inter
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import torch
 from torch import nn
 
-__all__ = ['HashGridEncoding']
+from fruitnerfpp_ros.errors import ConfigError
+
+__all__ = ['HashGridConfig', 'HashGridEncoding']
 
 #: instant-NGP hash primes as int32 (multiplication wraps around like the original uint32 arithmetic).
 _PRIMES = (1, 2654435761 - 2 ** 32, 805459861)
+
+
+@dataclass(frozen=True)
+class HashGridConfig:
+    """One multiresolution hash grid over the scene box."""
+
+    num_levels: int = 16
+    """Number of resolution levels L."""
+    features_per_level: int = 2
+    """Features F stored per vertex."""
+    log2_table_size: int = 19
+    """log2 of the table entries T per level (at most 30)."""
+    base_resolution: int = 16
+    """Coarsest grid resolution over the box."""
+    max_resolution: int = 2048
+    """Finest grid resolution over the box (geometric progression in between)."""
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.num_levels <= 64 or self.features_per_level < 1:
+            raise ConfigError(f'hash grid: num_levels must be in 1..64 and features_per_level >= 1, got '
+                              f'{self.num_levels} / {self.features_per_level}')
+        if not 4 <= self.log2_table_size <= 30:
+            raise ConfigError(f'hash grid: log2_table_size must be in 4..30, got {self.log2_table_size}')
+        if not 1 <= self.base_resolution <= self.max_resolution:
+            raise ConfigError(f'hash grid: need 1 <= base_resolution <= max_resolution, got '
+                              f'{self.base_resolution} / {self.max_resolution}')
+
+    @property
+    def output_dim(self) -> int:
+        """Features per point, L * F."""
+        return self.num_levels * self.features_per_level
 
 
 class HashGridEncoding(nn.Module):
@@ -25,24 +59,22 @@ class HashGridEncoding(nn.Module):
     backward of ``index_select`` (an index_add), deterministic on the CPU.
 
     Args:
-        num_levels: number of resolutions L.
-        features_per_level: features F stored per vertex.
-        log2_table_size: log2 of the table size T per level.
-        base_resolution: coarsest grid resolution.
-        max_resolution: finest grid resolution (geometric progression in between).
+        config: levels, features, table size and resolutions.
         init_scale: table entries start uniform in [-init_scale, init_scale].
+        generator: random source of the initial table (None: torch's global one).
     """
 
-    def __init__(self, *, num_levels: int = 16, features_per_level: int = 2, log2_table_size: int = 19,
-                 base_resolution: int = 16, max_resolution: int = 2048, init_scale: float = 1e-4) -> None:
+    def __init__(self, config: HashGridConfig, *, init_scale: float = 1e-4,
+                 generator: torch.Generator | None = None) -> None:
         super().__init__()
-        if log2_table_size > 30:
-            raise ValueError('log2_table_size must be <= 30')
+        self.config = config
+        num_levels, features_per_level = config.num_levels, config.features_per_level
         self.num_levels = num_levels
         self.features_per_level = features_per_level
-        self.table_size = 2 ** log2_table_size
-        growth = math.exp((math.log(max_resolution) - math.log(base_resolution)) / max(num_levels - 1, 1))
-        resolutions = [int(math.floor(base_resolution * growth ** i)) for i in range(num_levels)]
+        self.table_size = 2 ** config.log2_table_size
+        base, finest = config.base_resolution, config.max_resolution
+        growth = math.exp((math.log(finest) - math.log(base)) / max(num_levels - 1, 1))
+        resolutions = [int(math.floor(base * growth ** i)) for i in range(num_levels)]
         dense = torch.tensor([(r + 1) ** 3 <= self.table_size for r in resolutions])
         self.num_dense = int(dense.sum())  # resolutions grow, so the dense levels come first
         r1 = torch.tensor([r + 1 for r in resolutions], dtype=torch.int32)
@@ -58,8 +90,8 @@ class HashGridEncoding(nn.Module):
                              (torch.arange(num_levels, dtype=torch.int32) * self.table_size)[:, None],
                              persistent=False)                                                  # [L, 1]
         #: [F, L * T]: feature-major, so each feature is one 1-D gather.
-        self.table = nn.Parameter(
-            torch.empty(features_per_level, num_levels * self.table_size).uniform_(-init_scale, init_scale))
+        self.table = nn.Parameter(torch.empty(features_per_level, num_levels * self.table_size))
+        nn.init.uniform_(self.table, -init_scale, init_scale, generator=generator)
 
     @property
     def output_dim(self) -> int:
@@ -70,7 +102,8 @@ class HashGridEncoding(nn.Module):
         n, nd, levels = x.shape[0], self.num_dense, self.num_levels
         xt = x.clamp(0.0, 1.0).to(torch.float32).T.contiguous()                         # [3, N]
         scaled = xt[:, None, :] * self.resolutions[None]                                # [3, L, N]
-        floor = torch.floor(scaled)
+        # x = 1 lies on the last cell's far face: interpolate there (frac = 1) instead of indexing vertex res + 1
+        floor = torch.minimum(torch.floor(scaled), self.resolutions[None] - 1.0)
         frac = scaled - floor
         low = floor.to(torch.int32) * self.multipliers
         ax, ay, az = torch.stack([low, low + self.multipliers], 1).unbind(0)           # [2, L, N] each

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
-__all__ = ['make_mlp', 'spherical_harmonics', 'TruncExp', 'trunc_exp']
+__all__ = ['make_mlp', 'init_mlp', 'spherical_harmonics', 'TruncExp', 'trunc_exp']
 
 
 def make_mlp(in_dim: int, hidden_dim: int, num_hidden: int, out_dim: int) -> nn.Sequential:
@@ -17,6 +19,17 @@ def make_mlp(in_dim: int, hidden_dim: int, num_hidden: int, out_dim: int) -> nn.
         dim = hidden_dim
     layers.append(nn.Linear(dim, out_dim))
     return nn.Sequential(*layers)
+
+
+def init_mlp(mlp: nn.Sequential, generator: torch.Generator | None) -> None:
+    """Re-draw the weights and biases of every linear layer of ``mlp`` with ``generator``, with PyTorch's own default
+    distributions (kaiming-uniform weights, uniform(+-1/sqrt(fan_in)) biases)."""
+    with torch.no_grad():
+        for layer in mlp:
+            if isinstance(layer, nn.Linear):
+                nn.init.kaiming_uniform_(layer.weight, a=math.sqrt(5), generator=generator)
+                bound = 1.0 / math.sqrt(layer.in_features)
+                nn.init.uniform_(layer.bias, -bound, bound, generator=generator)
 
 
 class TruncExp(torch.autograd.Function):

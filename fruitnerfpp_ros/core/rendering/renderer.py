@@ -11,7 +11,6 @@ from fruitnerfpp_ros.core.data.rays import RayBundle
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
 from fruitnerfpp_ros.core.rendering.marching import RaySamples, march_rays
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
-from fruitnerfpp_ros.core.rendering.outer import render_outer
 from fruitnerfpp_ros.core.rendering.volume import (accumulation, composite, distortion, exclusive_cumsum,
                                                    render_weights)
 
@@ -43,13 +42,13 @@ class RenderOutput(NamedTuple):
     """Per-ray results.
 
     Attributes:
-        rgb: [N, 3] colour in [0, 1] (the outer field and the background colour blended in where the ray stays
-            transparent).
+        rgb: [N, 3] colour in [0, 1] (the background colour blended in where the ray stays transparent).
         opacity: [N] accumulated weight in [0, 1].
         fruit_prob: [N] rendered fruit probability (sum of weight * sigmoid(logit)), or None.
         embedding: [N, D] rendered instance embedding (not normalised), or None.
         num_samples: samples evaluated by the field.
-        distortion: mean distortion loss of the colour weights (metres; differentiable), or None.
+        distortion: mean distortion loss of the colour weights over the first ``distortion_rays`` rays (metres;
+            differentiable), or None.
     """
 
     rgb: torch.Tensor | None
@@ -80,7 +79,8 @@ def _early_terminated(samples: RaySamples, geometry: GeometryFn, stop_transmitta
 
 def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, settings: RenderSettings, *,
                 jitter: torch.Tensor | None = None, colour: bool = True, semantic: bool = False,
-                instance: bool = False, geometry_fn: GeometryFn | None = None) -> RenderOutput:
+                instance: bool = False, geometry_fn: GeometryFn | None = None,
+                distortion_rays: int | None = None) -> RenderOutput:
     """Volume-render ``rays`` through the field.
 
     Gradients: colour/opacity reach density and colour; the fruit probability and the embedding are composited
@@ -96,6 +96,8 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
         jitter: [N] first-sample offsets in [0, 1) (training), None for deterministic mid-step samples.
         colour, semantic, instance: which quantities to render.
         geometry_fn: replacement for ``field.geometry`` (e.g. a compiled version).
+        distortion_rays: the distortion loss covers rays ``0..distortion_rays-1`` only (the uniformly drawn part of a
+            training batch); None = every ray.
     """
     geometry = geometry_fn or field.geometry
     device = rays.origins.device
@@ -110,16 +112,10 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
         rgb = fruit_prob = embedding = dist = None
         if colour:
             if torch.is_grad_enabled():
-                dist = distortion(samples, weights)
+                dist = distortion(samples, weights, num_rays=distortion_rays)
             values = field.rgb(geo.features, samples.directions)
             opacity = accumulation(samples, weights)
             behind = field.background_rgb(rays.directions)
-            if field.outer is not None:
-                c = field.config
-                outer_rgb, outer_opacity = render_outer(field.outer, rays, num_samples=c.outer_samples,
-                                                        far_factor=c.outer_far_factor, near=settings.near,
-                                                        jitter=jitter)
-                behind = outer_rgb + (1.0 - outer_opacity[:, None]) * behind
             rgb = composite(samples, weights, values) + (1.0 - opacity[:, None]) * behind
         else:
             opacity = accumulation(samples, weights.detach())

@@ -41,14 +41,22 @@ def accumulation(samples: RaySamples, weights: torch.Tensor) -> torch.Tensor:
     return weights.new_zeros(samples.num_rays).index_add(0, samples.ray_index, weights)
 
 
-def distortion(samples: RaySamples, weights: torch.Tensor) -> torch.Tensor:
+def distortion(samples: RaySamples, weights: torch.Tensor, *, num_rays: int | None = None) -> torch.Tensor:
     """Mean over rays of the mip-NeRF 360 distortion loss (metres): small when each ray's weight is concentrated.
 
     L = sum_ij w_i w_j |t_i - t_j| + 1/3 sum_i w_i^2 step, computed with prefix sums in O(samples).
+
+    Args:
+        samples: S packed samples of N rays.
+        weights: [S] render weights.
+        num_rays: only rays ``0..num_rays-1`` count (the mean is over them); None = all N.
     """
     t = (samples.slot % samples.max_samples).to(weights.dtype) * samples.step
     w_before = exclusive_cumsum(samples, weights)
     wt_before = exclusive_cumsum(samples, weights * t)
     pairwise = 2.0 * weights * (t * w_before - wt_before)
     own = weights ** 2 * samples.step / 3.0
-    return (pairwise + own).sum() / max(samples.num_rays, 1)
+    per_sample = pairwise + own
+    if num_rays is None or num_rays >= samples.num_rays:
+        return per_sample.sum() / max(samples.num_rays, 1)
+    return per_sample[samples.ray_index < num_rays].sum() / max(num_rays, 1)

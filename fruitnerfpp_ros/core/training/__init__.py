@@ -18,14 +18,8 @@ from fruitnerfpp_ros.core.training.config import (
 )
 from fruitnerfpp_ros.core.training.metrics import EvalMetrics
 from fruitnerfpp_ros.core.training.run_dir import RunDir
-from fruitnerfpp_ros.core.training.trainer import (
-    STAGES,
-    StageSummary,
-    TrainedScene,
-    TrainSummary,
-    load_trained_scene,
-    train,
-)
+from fruitnerfpp_ros.core.training.trained_scene import TrainedScene, load_trained_scene
+from fruitnerfpp_ros.core.training.trainer import STAGES, StageSummary, TrainSummary, train
 
 __all__ = ['TrainConfig', 'DataConfig', 'RenderConfig', 'GeometryStageConfig', 'SemanticStageConfig',
            'InstanceStageConfig', 'PRESET_NAMES', 'train', 'load_trained_scene', 'TrainedScene', 'TrainSummary',

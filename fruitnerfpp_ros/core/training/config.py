@@ -1,7 +1,7 @@
 """TrainConfig: every hyper-parameter of cascaded training in one typed, frozen, YAML-loadable config.
 
-Presets: ``tiny`` (CPU tests, 96 px scenes in about a minute), ``default`` (GPU), ``paper`` (the paper's long
-schedule). ``config/train_<preset>.yaml`` hold the same values as YAML.
+Presets (``presets.py``): ``tiny`` (CPU tests, 96 px scenes in about a minute), ``cpu``, ``default`` (GPU),
+``paper`` (the paper's long schedule). ``config/train_<preset>.yaml`` hold the same values as YAML.
 
 Density scale (for the export): densities are in 1/m. A sample of thickness ``render.step`` metres is half
 opaque when ``density >= ln 2 / step``: the ``surface_density`` method gives that value for a box, ~34/m for the
@@ -14,18 +14,17 @@ should sit near 2-5/m (or a multiple of the box median), with fruit_prob >= 0.9 
 
 from __future__ import annotations
 
-import dataclasses
-
 import math
 from dataclasses import dataclass
 from dataclasses import field as _field
 
-from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig
-from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
+from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, HashGridConfig
+from fruitnerfpp_ros.core.preset_names import PRESET_NAMES  # noqa: F401 - re-exported
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['TrainConfig', 'DataConfig', 'RenderConfig', 'GeometryStageConfig', 'SemanticStageConfig',
-           'InstanceStageConfig', 'FieldConfig', 'PRESET_NAMES']
+__all__ = ['TrainConfig', 'DataConfig', 'RenderConfig', 'StageSchedule', 'GeometryStageConfig',
+           'SemanticStageConfig', 'InstanceStageConfig', 'OptimizerConfig', 'FieldConfig', 'HashGridConfig',
+           'PRESET_NAMES']
 
 
 @dataclass(frozen=True)
@@ -67,6 +66,9 @@ class RenderConfig:
     """Decay of the occupancy values per update."""
     occupancy_update_every: int = 16
     """Training steps between occupancy updates (stages 1 and 2)."""
+    stop_transmittance: float = 1e-3
+    """Training rays drop their samples behind the point where the transmittance (from a first, gradient-free
+    density pass) falls below this; 0 disables early termination."""
     chunk_rays: int = 8192
     """Rays per chunk when rendering whole images for evaluation."""
     mixed_precision: bool = True
@@ -80,46 +82,64 @@ class RenderConfig:
 
 
 @dataclass(frozen=True)
-class GeometryStageConfig:
+class StageSchedule:
+    """What every training stage has: a number of steps and an exponentially decaying learning rate."""
+
+    iterations: int = 1000
+    """Training steps."""
+    lr: float = 1e-2
+    """Adam learning rate of the stage's own parameters at its first step."""
+    lr_final_factor: float = 0.1
+    """Learning rate at the last step, as a fraction of ``lr`` (exponential decay in between)."""
+
+    @property
+    def lr_final(self) -> float:
+        """Learning rate at the last step."""
+        return self.lr * self.lr_final_factor
+
+
+@dataclass(frozen=True)
+class GeometryStageConfig(StageSchedule):
     """Stage 1: density + colour, uniform rays."""
 
     iterations: int = 4000
     """Training steps."""
     batch_rays: int = 4096
     """Rays per step."""
-    lr: float = 1e-2
-    """Adam learning rate (decays exponentially to lr * lr_final_factor)."""
-    lr_final_factor: float = 0.1
-    """Learning rate at the last step, as a fraction of ``lr``."""
     distortion_weight: float = 0.01
-    """Weight of the distortion loss (1/m): pulls each ray's weight together, against floaters and fog."""
+    """Weight of the distortion loss (1/m): pulls each ray's weight together, against floaters and fog. Computed on
+    the same uniformly drawn rays as the photometric loss (in stage 2 the fruit-biased rays train the semantic
+    head only)."""
     pose_lr: float = 0.0
     """Adam learning rate of the per-view pose corrections (radians, metres; pose_refinement.py), trained in
     stages 1 and 2 and decayed like ``lr``; 0 = the recorded poses are used as they are."""
     pose_start_fraction: float = 0.25
     """The pose corrections start training after this fraction of stage 1 (a first geometry to align to)."""
 
+    @property
+    def pose_lr_final(self) -> float:
+        """Pose learning rate at the end of stage 1 (and throughout stage 2)."""
+        return self.pose_lr * self.lr_final_factor
+
 
 @dataclass(frozen=True)
-class SemanticStageConfig:
-    """Stage 2: + fruit semantics, uniform rays, density and colour keep training."""
+class SemanticStageConfig(StageSchedule):
+    """Stage 2: + fruit semantics, uniform rays plus fruit pixels; density, colour (and poses) keep training at the
+    constant learning rate stage 1 ended with (``GeometryStageConfig.lr_final`` / ``pose_lr_final``)."""
 
     iterations: int = 1500
     """Training steps."""
     batch_rays: int = 4096
     """Rays per step."""
-    lr: float = 1e-2
-    """Adam learning rate of the semantic head (density and colour continue at stage 1's final rate)."""
-    lr_final_factor: float = 0.1
-    """Learning rate at the last step, as a fraction of ``lr``."""
     semantic_weight: float = 1.0
     """lambda_sem, the weight of the BCE loss."""
     fruit_fraction: float = 0.25
-    """Fraction of each batch drawn from fruit pixels (the rest uniformly): fruit is a few percent of an image."""
+    """Fraction of each batch drawn from fruit pixels (the rest uniformly): fruit is a few percent of an image. The
+    photometric and distortion losses use the uniform part only."""
 
 
 @dataclass(frozen=True)
-class InstanceStageConfig:
+class InstanceStageConfig(StageSchedule):
     """Stage 3: instance field only (everything else frozen), group sampler, prototype InfoNCE."""
 
     iterations: int = 2500
@@ -132,14 +152,22 @@ class InstanceStageConfig:
     """P, pixels sampled per fruit."""
     temperature: float = 0.2
     """tau of the InfoNCE loss (feasible 0.1-0.3)."""
-    lr: float = 1e-2
-    """Adam learning rate (decays exponentially to lr * lr_final_factor)."""
-    lr_final_factor: float = 0.1
-    """Learning rate at the last step, as a fraction of ``lr``."""
     weight_threshold: float = 1e-4
     """Samples with a render weight below this are skipped by the instance head."""
     contrastive_weight: float = 1.0
     """lambda_contr, the weight of the contrastive loss."""
+
+
+@dataclass(frozen=True)
+class OptimizerConfig:
+    """Adam settings shared by every stage (instant-NGP's choice for hash grids)."""
+
+    beta1: float = 0.9
+    """Adam beta1."""
+    beta2: float = 0.99
+    """Adam beta2."""
+    eps: float = 1e-15
+    """Adam epsilon (tiny: hash-table entries see rare, small gradients)."""
 
 
 @dataclass(frozen=True)
@@ -158,6 +186,8 @@ class TrainConfig:
     """Stage 2."""
     instance: InstanceStageConfig = _field(default_factory=InstanceStageConfig)
     """Stage 3."""
+    optimizer: OptimizerConfig = _field(default_factory=OptimizerConfig)
+    """Adam settings."""
     seed: int = 0
     """Seed of every random source (weights, samplers, jitter)."""
     checkpoint_every: int = 500
@@ -167,8 +197,9 @@ class TrainConfig:
     eval_max_views: int = 8
     """Held-out views rendered for the stage-end evaluation (the first n)."""
     cpu_threads: int = 1
-    """torch CPU threads while training on the CPU (0 = keep torch's setting). One thread is the fast choice for
-    these small batches: with more, OpenMP barriers collapse when other processes share the cores."""
+    """torch CPU threads the callers (CLI, node) set before training on the CPU (0 = keep torch's setting); the
+    library itself never changes process-wide settings. One thread is the fast choice for these small batches: with
+    more, OpenMP barriers collapse when other processes share the cores."""
 
     def __post_init__(self) -> None:
         for name in ('geometry', 'semantic', 'instance'):
@@ -185,48 +216,7 @@ class TrainConfig:
 
     @classmethod
     def preset(cls, name: str) -> 'TrainConfig':
-        """The named preset: ``tiny`` (CPU tests, ~1.5 min), ``cpu`` (a real tree on a CPU, ~5 min), ``default``
-        (GPU, minutes) or ``paper`` (long schedule)."""
-        if name == 'default':
-            return cls()
-        if name == 'tiny':
-            return cls(
-                # A coarse geometry grid (6 levels up to 128 over the box) overfits 21 views of 96 px less than a
-                # finer one: held-out PSNR, semantic IoU and the count all improved (docs/results/tiny_preset.md).
-                field=FieldConfig(num_levels=6, features_per_level=2, log2_table_size=15, base_resolution=8,
-                                  max_resolution=128, hidden_dim=32, density_layers=1, color_layers=1, sh_degree=2,
-                                  semantic_layers=1, semantic_num_levels=6, semantic_log2_table_size=15,
-                                  semantic_base_resolution=8, semantic_max_resolution=256, embedding_dim=32,
-                                  instance_num_levels=6, instance_log2_table_size=15, instance_base_resolution=8,
-                                  instance_max_resolution=256, instance_hidden_dim=32, instance_layers=1),
-                # A box that reaches further into the ground and sky the cameras see (view fraction 0.1, 3x the
-                # sparse points) and 1.4 cm steps (288 per diagonal): floaters that painted the world outside the
-                # old box carried fruit probability; seed 2 of the test scene went from F1 0.21 to 0.95.
-                data=DataConfig(min_view_fraction=0.1, points_growth=3.0),
-                render=RenderConfig(samples_per_ray=288, occupancy_resolution=48, occupancy_update_every=8,
-                                    chunk_rays=4096),
-                geometry=GeometryStageConfig(iterations=600, batch_rays=640, lr=2e-2),
-                # fruit_fraction 0.5 taught a fruit prior of 50 % (fruit is ~5 % of a view): fruit probability
-                # >= 0.9 spread over the canopy. 0.15 and 400 steps: held-out IoU 0.28 -> 0.56 / 0.50 / 0.30 on
-                # three seeds of the test scene (docs/results/tiny_preset.md).
-                semantic=SemanticStageConfig(iterations=400, batch_rays=512, lr=5e-2, fruit_fraction=0.15),
-                instance=InstanceStageConfig(iterations=600, groups=4, group_size=8, pixels_per_fruit=24, lr=3e-2),
-                checkpoint_every=100, log_every=25, eval_max_views=3)
-        if name == 'cpu':
-            # The tiny field with 3x the steps and 2x the rays of its geometry and semantic stages: on an
-            # 80-apple tree F1 0.52 -> 0.66 (semantic IoU 0.26 -> 0.35); on the test scene's seeds 0 / 1
-            # F1 0.97 / 0.88 -> 0.97 / 0.97 (docs/results/tiny_preset.md). About 3x tiny's training time. It
-            # refines the poses, as robot odometry needs: with 2 cm / 1 deg noise F1 0.95; exact poses 0.97 -> 0.95.
-            tiny = cls.preset('tiny')
-            return dataclasses.replace(
-                tiny, geometry=dataclasses.replace(tiny.geometry, iterations=1800, batch_rays=1280, pose_lr=3e-4),
-                semantic=dataclasses.replace(tiny.semantic, iterations=1200, batch_rays=1024),
-                checkpoint_every=200, log_every=50)
-        if name == 'paper':
-            return cls(
-                geometry=GeometryStageConfig(iterations=30000, batch_rays=4096, lr=1e-2),
-                semantic=SemanticStageConfig(iterations=10000, batch_rays=4096, lr=1e-2),
-                instance=InstanceStageConfig(iterations=20000, groups=8, group_size=8, pixels_per_fruit=32),
-                render=RenderConfig(samples_per_ray=1024, occupancy_resolution=256),
-                checkpoint_every=2000, log_every=100)
-        raise ConfigError(f'unknown training preset {name!r}; expected one of {", ".join(PRESET_NAMES)}')
+        """The named preset (``core/training/presets.py``): ``tiny`` (CPU tests, ~1.5 min), ``cpu`` (a real tree on a
+        CPU, ~5 min), ``default`` (GPU, minutes) or ``paper`` (long schedule)."""
+        from fruitnerfpp_ros.core.training.presets import preset
+        return preset(name)

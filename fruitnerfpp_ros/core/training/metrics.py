@@ -25,15 +25,19 @@ class EvalMetrics(NamedTuple):
     Attributes:
         psnr: dB of the rendered colour vs the image over all pixels.
         semantic_iou: IoU of (rendered fruit probability > 0.5) vs the fruit mask.
-        instance_acc: fraction of GT fruit pixels whose embedding is nearest (cosine) to their own fruit's
-            prototype, prototypes being mean embeddings per GT fruit of that view.
+        instance_acc: over the views with at least two GT fruits, the fraction of their fruit pixels whose
+            embedding is nearest (cosine) to their own fruit's prototype (mean embedding per GT fruit of the view);
+            a pixel tied between m nearest prototypes counts 1/m, so a constant embedding scores chance.
         num_views: views evaluated.
+        instance_chance: what a constant embedding scores on the same pixels (the mean of 1/K over them, K the
+            fruits of each pixel's view): ``instance_acc`` is only meaningful above it.
     """
 
     psnr: float
     semantic_iou: float
     instance_acc: float
     num_views: int
+    instance_chance: float = float('nan')
 
 
 class ViewRender(NamedTuple):
@@ -55,21 +59,33 @@ def semantic_iou(fruit_prob: torch.Tensor, is_fruit: torch.Tensor, threshold: fl
     return int((pred & is_fruit).sum()), int((pred | is_fruit).sum())
 
 
-def instance_assignment_accuracy(embedding: torch.Tensor, instance_mask: torch.Tensor) -> tuple[int, int]:
-    """(correct, total) fruit pixels of one view assigned to their own GT fruit's prototype.
+def instance_assignment_accuracy(embedding: torch.Tensor, instance_mask: torch.Tensor,
+                                 min_fruits: int = 2) -> tuple[float, float, int]:
+    """Credit of one view's fruit pixels assigned to their own GT fruit's prototype.
 
     Args:
         embedding: [P, D] normalised embeddings of the view's pixels.
         instance_mask: [P] per-image instance ids, 0 = background.
+        min_fruits: views with fewer GT fruits score nothing (a single fruit is always "right").
+
+    Returns:
+        (credit, chance credit, fruit pixels counted): a pixel whose own prototype is among its m nearest (ties
+        included) earns 1/m when that set holds its own fruit, else 0; chance is 1/K per pixel.
     """
     fruit = instance_mask > 0
     if int(fruit.sum()) == 0:
-        return 0, 0
+        return 0.0, 0.0, 0
     ids, labels = torch.unique(instance_mask[fruit], return_inverse=True)
+    if len(ids) < min_fruits:
+        return 0.0, 0.0, 0
     emb = embedding[fruit].float()
     prototypes = fruit_prototypes(emb, labels, len(ids))
-    nearest = torch.argmax(emb @ prototypes.T, dim=1)
-    return int((nearest == labels).sum()), int(len(labels))
+    similarity = emb @ prototypes.T                                                   # [P, K]
+    best = similarity.max(dim=1, keepdim=True).values
+    nearest = similarity >= best - 1e-6                                                # ties within float error
+    own = nearest.gather(1, labels[:, None])[:, 0]
+    credit = own.float() / nearest.sum(1).float()
+    return float(credit.sum()), len(labels) / len(ids), int(len(labels))
 
 
 @torch.no_grad()
@@ -100,16 +116,20 @@ def evaluate_views(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset
     if not views:
         nan = float('nan')
         return EvalMetrics(nan, nan, nan, 0)
-    sq_err, pixels, inter, union, correct, total = 0.0, 0, 0, 0, 0, 0
+    sq_err, pixels, inter, union, correct, chance, total = 0.0, 0, 0, 0, 0.0, 0.0, 0
     for view in views:
         out = render_view(field, grid, dataset, view, settings, chunk_rays)
-        image = dataset.images[view].to(out.rgb.device)
-        sq_err += float(((out.rgb - image) ** 2).sum()) / 3.0
-        pixels += image.shape[0] * image.shape[1]
-        i, u = semantic_iou(out.fruit_prob, dataset.semantic_masks[view].to(out.rgb.device))
+        device = out.rgb.device
+        valid = (torch.ones(out.fruit_prob.shape, dtype=torch.bool, device=device) if dataset.valid_masks is None
+                 else dataset.valid_masks[view].to(device))
+        image = dataset.images[view].to(device)
+        sq_err += float(((out.rgb - image) ** 2)[valid].sum()) / 3.0
+        pixels += int(valid.sum())
+        i, u = semantic_iou(out.fruit_prob[valid], dataset.semantic_masks[view].to(device)[valid])
         inter, union = inter + i, union + u
-        c, t = instance_assignment_accuracy(out.embedding.reshape(-1, out.embedding.shape[-1]),
-                                            dataset.instance_masks[view].reshape(-1).to(out.rgb.device))
-        correct, total = correct + c, total + t
-    return EvalMetrics(psnr_from_mse(sq_err / pixels), inter / union if union else float('nan'),
-                       correct / total if total else float('nan'), len(views))
+        c, ch, t = instance_assignment_accuracy(out.embedding.reshape(-1, out.embedding.shape[-1]),
+                                                dataset.instance_masks[view].reshape(-1).to(device))
+        correct, chance, total = correct + c, chance + ch, total + t
+    nan = float('nan')
+    return EvalMetrics(psnr_from_mse(sq_err / pixels) if pixels else nan, inter / union if union else nan,
+                       correct / total if total else nan, len(views), chance / total if total else nan)

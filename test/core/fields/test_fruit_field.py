@@ -1,23 +1,38 @@
-"""FruitField: query contract, and gradient isolation of the semantic and instance heads."""
+"""FruitField: query contract, seeded initialisation, and exact gradient isolation of every head."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from fruitnerfpp_ros.core.data.rays import RayBundle
-from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, FruitField
+from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, FruitField, HashGridConfig
 from fruitnerfpp_ros.core.fields.query import QueryableField
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
 from fruitnerfpp_ros.core.rendering.renderer import RenderSettings, render_rays
 from fruitnerfpp_ros.core.training.losses import prototype_infonce, semantic_loss
 
-SMALL = FieldConfig(num_levels=4, log2_table_size=12, base_resolution=4, max_resolution=32, hidden_dim=16,
-                    embedding_dim=8, instance_num_levels=2, instance_log2_table_size=10, instance_hidden_dim=16)
+SMALL = FieldConfig(
+    geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, base_resolution=4, max_resolution=32),
+    hidden_dim=16, embedding_dim=8, instance_hidden_dim=16,
+    instance_grid=HashGridConfig(num_levels=2, log2_table_size=10, base_resolution=16, max_resolution=512))
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
 
-def _density_params(field: FruitField) -> list[torch.nn.Parameter]:
-    return list(field.encoding.parameters()) + list(field.density_mlp.parameters())
+def _rays(n: int = 64) -> RayBundle:
+    origins = torch.tensor([[0.0, 0.0, 3.0]]).repeat(n, 1)
+    directions = torch.nn.functional.normalize(torch.cat([torch.rand(n, 2) * 0.4 - 0.2, -torch.ones(n, 1)], 1),
+                                               dim=-1)
+    return RayBundle(origins, directions)
+
+
+def _heads(field: FruitField) -> dict[str, list[torch.nn.Parameter]]:
+    return {'geometry': list(field.geometry_parameters()), 'semantic': list(field.semantic_parameters()),
+            'instance': list(field.instance_parameters())}
+
+
+def _reached(params: list[torch.nn.Parameter]) -> bool:
+    return any(p.grad is not None and bool((p.grad != 0).any()) for p in params)
 
 
 def test_query_contract() -> None:
@@ -33,25 +48,28 @@ def test_query_contract() -> None:
     assert not q.density.requires_grad
 
 
-def test_semantic_and_instance_losses_leave_density_untouched() -> None:
+def test_a_generator_makes_the_weights_reproducible_without_the_global_seed() -> None:
+    a = FruitField(SMALL, AABB.numpy(), generator=torch.Generator().manual_seed(3))
+    torch.manual_seed(123)
+    b = FruitField(SMALL, AABB.numpy(), generator=torch.Generator().manual_seed(3))
+    c = FruitField(SMALL, AABB.numpy(), generator=torch.Generator().manual_seed(4))
+    state_a, state_b, state_c = a.state_dict(), b.state_dict(), c.state_dict()
+    assert all(torch.equal(state_a[k], state_b[k]) for k in state_a)
+    assert not all(torch.equal(state_a[k], state_c[k]) for k in state_a)
+
+
+@pytest.mark.parametrize('loss_name', ['photometric', 'semantic', 'contrastive'])
+def test_each_loss_reaches_exactly_its_own_head(loss_name: str) -> None:
+    """Photometric -> density/colour only; BCE -> semantic head only; InfoNCE -> instance head only."""
     torch.manual_seed(0)
     field = FruitField(SMALL, AABB.numpy())
     grid = OccupancyGrid(AABB, resolution=8, threshold=0.01, decay=0.95)
-    origins = torch.tensor([[0.0, 0.0, 3.0]]).repeat(64, 1)
-    directions = torch.nn.functional.normalize(torch.cat([torch.rand(64, 2) * 0.4 - 0.2, -torch.ones(64, 1)], 1),
-                                               dim=-1)
-    rays = RayBundle(origins, directions)
-    settings = RenderSettings(step=0.05, near=0.0)
-    out = render_rays(field, grid, rays, settings, semantic=True, instance=True)
+    out = render_rays(field, grid, _rays(), RenderSettings(step=0.05, near=0.0), semantic=True, instance=True)
     labels = torch.arange(64) % 4
-    loss = semantic_loss(out.fruit_prob, labels == 0) + prototype_infonce(out.embedding, labels, 0.2)
+    loss = {'photometric': lambda: out.rgb.sum(),
+            'semantic': lambda: semantic_loss(out.fruit_prob, labels == 0),
+            'contrastive': lambda: prototype_infonce(out.embedding, labels, 0.2)}[loss_name]()
     loss.backward()
-    for p in _density_params(field) + list(field.color_mlp.parameters()):
-        assert p.grad is None or float(p.grad.abs().max()) == 0.0
-    assert any(p.grad is not None and float(p.grad.abs().max()) > 0 for p in field.semantic_parameters())
-    assert any(p.grad is not None and float(p.grad.abs().max()) > 0 for p in field.instance_parameters())
-    # ... while the photometric path does reach density
-    field.zero_grad()
-    out = render_rays(field, grid, rays, settings)
-    out.rgb.sum().backward()
-    assert any(p.grad is not None and float(p.grad.abs().max()) > 0 for p in _density_params(field))
+    own = {'photometric': 'geometry', 'semantic': 'semantic', 'contrastive': 'instance'}[loss_name]
+    for head, params in _heads(field).items():
+        assert _reached(params) == (head == own), (loss_name, head)

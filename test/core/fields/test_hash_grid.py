@@ -1,29 +1,31 @@
-"""Hash-grid encoding: exact trilinear interpolation on dense levels, valid hashed indices."""
+"""Hash-grid encoding: exact trilinear interpolation on dense levels, valid indices everywhere, also on the faces."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
-from fruitnerfpp_ros.core.fields.hash_grid import HashGridEncoding
+from fruitnerfpp_ros.core.fields.hash_grid import HashGridConfig, HashGridEncoding
+from fruitnerfpp_ros.errors import ConfigError
 
 
 def test_dense_level_is_trilinear_interpolation() -> None:
-    enc = HashGridEncoding(num_levels=1, features_per_level=1, log2_table_size=12, base_resolution=4,
-                           max_resolution=4)
+    enc = HashGridEncoding(HashGridConfig(num_levels=1, features_per_level=1, log2_table_size=12, base_resolution=4,
+                                          max_resolution=4))
     assert enc.num_dense == 1
     # vertex value = x + 10 y + 100 z on the 5^3 grid: trilinear interpolation reproduces the linear function
     ijk = torch.stack(torch.meshgrid(*[torch.arange(5)] * 3, indexing='ij'), -1).reshape(-1, 3)
     with torch.no_grad():
         enc.table.zero_()
         enc.table[0, ijk[:, 0] + 5 * ijk[:, 1] + 25 * ijk[:, 2]] = (ijk.float() @ torch.tensor([1.0, 10.0, 100.0]))
-    x = torch.rand(200, 3)
+    x = torch.cat([torch.rand(200, 3), torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0], [1.0, 0.0, 0.5]])])
     expected = (x * 4) @ torch.tensor([1.0, 10.0, 100.0])
     assert torch.allclose(enc(x)[:, 0], expected, atol=1e-3)
 
 
 def test_hashed_levels_index_inside_their_table_and_get_gradients() -> None:
-    enc = HashGridEncoding(num_levels=4, features_per_level=2, log2_table_size=11, base_resolution=4,
-                           max_resolution=64)
+    enc = HashGridEncoding(HashGridConfig(num_levels=4, features_per_level=2, log2_table_size=11, base_resolution=4,
+                                          max_resolution=64))
     assert enc.num_dense == 2  # 5^3 and 11^3 vertices fit 2048 entries; finer levels are hashed
     index, weights = enc.vertex_index(torch.rand(300, 3))
     for level in range(4):
@@ -33,3 +35,28 @@ def test_hashed_levels_index_inside_their_table_and_get_gradients() -> None:
     assert out.shape == (50, 8)
     out.sum().backward()
     assert enc.table.grad is not None and int((enc.table.grad != 0).sum()) > 0
+
+
+@pytest.mark.parametrize('log2_table, finest', [(9, 7), (11, 12), (11, 64)])
+def test_faces_of_the_unit_cube_index_only_their_own_level(log2_table: int, finest: int) -> None:
+    """x = 0 and x = 1 exactly, on every level: every vertex index (zero-weight ones too) lies in its level's part
+    of the table; a dense last level that fills the table (8^3 = 2^9) used to index past its end at x = 1."""
+    table = 2 ** log2_table
+    enc = HashGridEncoding(HashGridConfig(num_levels=3, features_per_level=2, log2_table_size=log2_table,
+                                          base_resolution=2, max_resolution=finest))
+    corners = torch.stack(torch.meshgrid(*[torch.tensor([0.0, 1.0])] * 3, indexing='ij'), -1).reshape(-1, 3)
+    index, weights = enc.vertex_index(corners)
+    resolutions = enc.resolutions[:, 0].long()
+    for level in range(3):
+        size = (int(resolutions[level]) + 1) ** 3 if level < enc.num_dense else table
+        assert int(index[:, level].min()) >= level * table, level
+        assert int(index[:, level].max()) < level * table + size, level
+    assert torch.allclose(weights.sum(0), torch.ones_like(weights[0]))
+    assert torch.isfinite(enc(corners)).all()
+
+
+def test_bad_grid_settings_are_config_errors() -> None:
+    with pytest.raises(ConfigError, match='log2_table_size'):
+        HashGridConfig(log2_table_size=31)
+    with pytest.raises(ConfigError, match='base_resolution'):
+        HashGridConfig(base_resolution=64, max_resolution=32)

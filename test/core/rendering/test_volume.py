@@ -1,15 +1,18 @@
-"""Volume rendering weights, occupancy grid and ray marching."""
+"""Volume rendering weights, distortion loss, early termination, occupancy grid and ray marching."""
 
 from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
 from fruitnerfpp_ros.core.data.rays import RayBundle, intersect_aabb, rays_for_pixels
+from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, FruitField, HashGridConfig
 from fruitnerfpp_ros.core.rendering.marching import march_rays
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
-from fruitnerfpp_ros.core.rendering.volume import accumulation, composite, render_weights
+from fruitnerfpp_ros.core.rendering.renderer import RenderSettings, render_rays
+from fruitnerfpp_ros.core.rendering.volume import accumulation, composite, distortion, render_weights
 
 AABB = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
 
@@ -51,3 +54,44 @@ def test_pixel_rays_follow_opengl_convention() -> None:
     assert float(rays.directions[1, 0]) > 0 and float(rays.directions[1, 1]) > 0  # top-right pixel: +x, +y
     near, far = intersect_aabb(RayBundle(torch.tensor([[0.5, 0.5, 3.0]]), torch.tensor([[0.0, 0.0, -1.0]])), AABB)
     assert float(near) == 2.0 and float(far) == 3.0
+
+
+def _random_samples(n_rays: int = 6, seed: int = 0) -> tuple:
+    """Packed samples of rays through the unit box with a random, partly empty occupancy grid."""
+    torch.manual_seed(seed)
+    grid = OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
+    grid.occupied.copy_(torch.rand(64) > 0.3)
+    samples = march_rays(_rays(n_rays), grid, 0.05)
+    return samples, torch.rand(len(samples.positions), dtype=torch.float64) * 0.2
+
+
+def test_distortion_loss_equals_the_brute_force_double_sum() -> None:
+    samples, weights = _random_samples()
+    t = (samples.slot % samples.max_samples).double() * samples.step
+    expected = 0.0
+    for ray in range(samples.num_rays):
+        on = samples.ray_index == ray
+        w, s = weights[on], t[on]
+        expected += float((w[:, None] * w[None, :] * (s[:, None] - s[None, :]).abs()).sum()
+                          + (w ** 2).sum() * samples.step / 3.0)
+    assert float(distortion(samples, weights)) == pytest.approx(expected / samples.num_rays, rel=1e-9)
+    # restricted to the first rays: their own mean, the others ignored
+    first = samples.ray_index < 2
+    only = float(distortion(samples, weights, num_rays=2))
+    weights_rest = torch.where(first, weights, weights * 7.0)
+    assert float(distortion(samples, weights_rest, num_rays=2)) == pytest.approx(only, rel=1e-12)
+    assert only != pytest.approx(float(distortion(samples, weights)))
+
+
+def test_rendering_with_and_without_early_termination_is_equal() -> None:
+    """Dropping samples behind transmittance 1e-3 changes the rendered colour by less than that bound."""
+    torch.manual_seed(0)
+    field = FruitField(FieldConfig(geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, base_resolution=4,
+                                                                max_resolution=32), hidden_dim=16, density_bias=4.0),
+                       AABB.numpy())
+    grid = OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
+    rays = _rays(32)
+    full = render_rays(field, grid, rays, RenderSettings(step=0.01, near=0.0, stop_transmittance=0.0))
+    early = render_rays(field, grid, rays, RenderSettings(step=0.01, near=0.0, stop_transmittance=1e-3))
+    assert early.num_samples < full.num_samples  # it did drop samples (density e^4 over 1 m is opaque)
+    assert torch.allclose(early.rgb, full.rgb, atol=2e-3) and torch.allclose(early.opacity, full.opacity, atol=2e-3)

@@ -1,0 +1,145 @@
+"""The trainable FruitNeRF++ model: the field, its occupancy grid, optional pose corrections and the training data
+on one device, with one method per loss.
+
+Stages (stages.py) decide which rays to render and which losses to add; the model renders and computes them. The
+gradient rules of the method live here and in the field: the photometric and distortion losses reach density,
+colour and the pose corrections; the semantic and contrastive losses reach only their own heads (detached render
+weights, detached geometry features and detached sample positions).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+from typing import Callable
+
+import numpy as np
+import torch
+from torch import nn
+
+from fruitnerfpp_ros.core.data.dataset import SceneDataset
+from fruitnerfpp_ros.core.data.rays import PixelBatch, RayBundle, rays_for_pixels
+from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
+from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
+from fruitnerfpp_ros.core.rendering.renderer import RenderOutput, RenderSettings, render_rays
+from fruitnerfpp_ros.core.training.config import TrainConfig
+from fruitnerfpp_ros.core.training.losses import photometric_loss, prototype_infonce, semantic_loss
+from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
+
+__all__ = ['FruitNeRFModel', 'render_settings', 'field_config_for']
+
+GeometryFn = Callable[[torch.Tensor], GeometryOutput]
+
+
+def render_settings(config: TrainConfig, aabb: np.ndarray) -> RenderSettings:
+    """How the rays of a run over the box ``aabb`` [2, 3] are marched."""
+    diagonal = float(np.linalg.norm(np.asarray(aabb)[1] - np.asarray(aabb)[0]))
+    return RenderSettings(step=config.render.step_size(diagonal), near=config.render.near,
+                          mixed_precision=config.render.mixed_precision,
+                          weight_threshold=config.instance.weight_threshold,
+                          stop_transmittance=config.render.stop_transmittance)
+
+
+def field_config_for(config: TrainConfig, step: float):  # -> FieldConfig
+    """The field config with the automatic density bias resolved for the marching ``step`` (m).
+
+    Untrained space starts just below the occupancy threshold (as instant-NGP does at its scale): the first
+    occupancy update then keeps only cells whose density training raised, never cells no ray constrains.
+    """
+    if config.field.density_bias is not None:
+        return config.field
+    return dataclasses.replace(config.field,
+                               density_bias=math.log(0.5 * config.render.occupancy_threshold / step))
+
+
+class _GuardedCompile:
+    """A torch.compile'd callable that falls back to eager mode, once and for good, when compiling fails."""
+
+    def __init__(self, fn: GeometryFn) -> None:
+        self._eager = fn
+        self._compiled: GeometryFn | None = torch.compile(fn, dynamic=True)
+
+    def __call__(self, xyz: torch.Tensor) -> GeometryOutput:
+        if self._compiled is not None:
+            try:
+                return self._compiled(xyz)
+            except Exception as err:  # compiler back-ends raise many types
+                warnings.warn(f'torch.compile failed ({type(err).__name__}: {err}); running eagerly')
+                self._compiled = None
+        return self._eager(xyz)
+
+
+class FruitNeRFModel(nn.Module):
+    """Field + occupancy grid + pose corrections of one training run, and the images they are fitted to.
+
+    Args:
+        config: the run's training config.
+        dataset: the loaded dataset (images and masks are copied to ``device``).
+        aabb: [2, 3] scene box, metres.
+        device: torch device.
+    """
+
+    def __init__(self, config: TrainConfig, dataset: SceneDataset, aabb: np.ndarray, device: torch.device) -> None:
+        super().__init__()
+        self.config = config
+        self.settings = render_settings(config, aabb)
+        init = torch.Generator().manual_seed(config.seed)  # weights are reproducible without seeding the process
+        self.field = FruitField(field_config_for(config, self.settings.step), aabb, generator=init).to(device)
+        render = config.render
+        self.grid = OccupancyGrid(torch.as_tensor(aabb, dtype=torch.float32), resolution=render.occupancy_resolution,
+                                  threshold=render.occupancy_threshold, decay=render.occupancy_decay).to(device)
+        trained = torch.zeros(dataset.num_views, dtype=torch.bool)
+        trained[dataset.train_indices] = True
+        self.pose_refinement = PoseRefinement(trained).to(device) if config.geometry.pose_lr > 0 else None
+        self.register_buffer('images', dataset.images.to(device), persistent=False)
+        self.register_buffer('semantics', dataset.semantic_masks.to(device), persistent=False)
+        self.register_buffer('poses', dataset.T_world_camera.to(device), persistent=False)
+        self.register_buffer('intrinsics', dataset.intrinsics.to(device), persistent=False)
+        self.geometry_fn: GeometryFn = self.field.geometry
+        if device.type == 'cuda' and render.compile and hasattr(torch, 'compile'):
+            self.geometry_fn = _GuardedCompile(self.field.geometry)
+
+    @property
+    def device(self) -> torch.device:
+        return self.images.device
+
+    def current_poses(self) -> torch.Tensor:
+        """The camera-to-world poses [V, 4, 4] the rays use: the recorded ones, corrected when refined."""
+        return self.poses if self.pose_refinement is None else self.pose_refinement(self.poses)
+
+    def rays(self, pixels: PixelBatch) -> RayBundle:
+        """World rays through ``pixels`` (on the model's device)."""
+        view, row, col = (t.to(self.device) for t in (pixels.view, pixels.row, pixels.col))
+        return rays_for_pixels(self.current_poses(), self.intrinsics, view, row, col)
+
+    def render(self, pixels: PixelBatch, jitter: torch.Tensor, *, colour: bool = True, semantic: bool = False,
+               instance: bool = False, distortion_rays: int | None = None) -> RenderOutput:
+        """Render the rays of ``pixels`` with first-sample offsets ``jitter`` [N] in [0, 1)."""
+        return render_rays(self.field, self.grid, self.rays(pixels), self.settings, jitter=jitter.to(self.device),
+                           colour=colour, semantic=semantic, instance=instance, geometry_fn=self.geometry_fn,
+                           distortion_rays=distortion_rays)
+
+    def _targets(self, table: torch.Tensor, pixels: PixelBatch, count: int | None = None) -> torch.Tensor:
+        view, row, col = (t[:count].to(self.device) for t in (pixels.view, pixels.row, pixels.col))
+        return table[view, row, col]
+
+    def photometric_loss(self, out: RenderOutput, pixels: PixelBatch, num_rays: int) -> torch.Tensor:
+        """Colour MSE over the first ``num_rays`` rays (the uniformly drawn part of a batch)."""
+        assert out.rgb is not None
+        return photometric_loss(out.rgb[:num_rays], self._targets(self.images, pixels, num_rays))
+
+    def semantic_loss(self, out: RenderOutput, pixels: PixelBatch) -> torch.Tensor:
+        """Fruit BCE over every ray of the batch."""
+        assert out.fruit_prob is not None
+        return semantic_loss(out.fruit_prob, self._targets(self.semantics, pixels))
+
+    def contrastive_loss(self, out: RenderOutput, pixels: PixelBatch) -> torch.Tensor:
+        """Prototype InfoNCE of the rendered embeddings against the batch's fruit labels."""
+        assert out.embedding is not None and pixels.fruit is not None
+        return prototype_infonce(out.embedding, pixels.fruit.to(self.device), self.config.instance.temperature,
+                                 num_fruits=int(pixels.fruit.max()) + 1)
+
+    def update_occupancy(self, generator: torch.Generator) -> None:
+        """Refresh the occupancy grid from the current density."""
+        self.grid.update(lambda xyz: self.geometry_fn(xyz).density, self.settings.step, generator)

@@ -1,0 +1,195 @@
+"""The three stages of cascaded training, one object each: its sampler, parameter groups, losses and schedule.
+
+1. :class:`GeometryStage`: density + colour (+ pose corrections) on uniform rays.
+2. :class:`SemanticStage`: + the semantic head; a share of fruit pixels is added to every batch for the BCE loss,
+   the photometric and distortion losses stay on the uniform rays; density, colour and poses continue at the
+   constant learning rate stage 1 ended with.
+3. :class:`InstanceStage`: the instance head alone, on the group sampler's pixels, with prototype InfoNCE.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import ClassVar, NamedTuple, Protocol
+
+import torch
+from torch import nn
+
+from fruitnerfpp_ros.core.data.dataset import SceneDataset
+from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler
+from fruitnerfpp_ros.core.progress import Phase
+from fruitnerfpp_ros.core.training.config import TrainConfig
+from fruitnerfpp_ros.core.training.model import FruitNeRFModel
+
+__all__ = ['ParamGroup', 'StepLosses', 'TrainingStage', 'GeometryStage', 'SemanticStage', 'InstanceStage',
+           'build_stages', 'STAGE_NAMES']
+
+STAGE_NAMES = ('geometry', 'semantic', 'instance')
+
+
+@dataclass(frozen=True)
+class ParamGroup:
+    """Parameters trained together with one learning-rate schedule.
+
+    The rate decays exponentially from ``lr_start`` to ``lr_end`` over the stage; it is 0 before
+    ``start_fraction`` of the stage (the pose corrections wait for a first geometry: Adam moves every parameter by
+    about its learning rate per step, so corrections trained from the first step random-walk while the field is
+    still noise).
+    """
+
+    name: str
+    params: tuple[nn.Parameter, ...]
+    lr_start: float
+    lr_end: float
+    start_fraction: float = 0.0
+
+    def lr_at(self, fraction: float) -> float:
+        """Learning rate at ``fraction`` in [0, 1] of the stage."""
+        if fraction < self.start_fraction or self.lr_start == 0.0:
+            return 0.0
+        return self.lr_start * (self.lr_end / self.lr_start) ** fraction
+
+
+class StepLosses(NamedTuple):
+    """The loss of one step and what is logged of it.
+
+    Attributes:
+        total: the scalar to minimise.
+        logged: detached scalars by name (``photo``, ``distortion``, ``semantic_loss``, ``contrastive_loss``).
+        samples_per_ray: samples the field evaluated per ray.
+    """
+
+    total: torch.Tensor
+    logged: dict[str, torch.Tensor]
+    samples_per_ray: float
+
+
+class TrainingStage(Protocol):
+    """What the training loop needs of a stage."""
+
+    name: str
+    iterations: int
+    updates_occupancy: bool
+
+    @property
+    def phase(self) -> Phase:
+        """The progress phase of the stage."""
+
+    def param_groups(self, model: FruitNeRFModel) -> list[ParamGroup]:
+        """The parameters this stage trains (every other parameter is frozen)."""
+
+    def losses(self, model: FruitNeRFModel, generator: torch.Generator) -> StepLosses:
+        """Draw one batch from ``generator``, render it and compute the stage's losses."""
+
+
+class GeometryStage:
+    """Stage 1: photometric + distortion loss on uniform rays; density, colour and pose corrections train."""
+
+    name: ClassVar[str] = 'geometry'
+    updates_occupancy = True
+
+    def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
+        self.config = config
+        self.iterations = config.geometry.iterations
+        self.batch_rays = config.geometry.batch_rays
+        self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
+                                           valid_masks=dataset.valid_masks)
+
+    @property
+    def phase(self) -> Phase:
+        return Phase.training(self.name)
+
+    def _geometry_groups(self, model: FruitNeRFModel, *, decaying: bool) -> list[ParamGroup]:
+        g = self.config.geometry
+        start, pose_start = (g.lr, g.pose_lr) if decaying else (g.lr_final, g.pose_lr_final)
+        groups = [ParamGroup('geometry', tuple(model.field.geometry_parameters()), start, g.lr_final)]
+        if model.pose_refinement is not None:
+            groups.append(ParamGroup('poses', tuple(model.pose_refinement.parameters()), pose_start,
+                                     g.pose_lr_final, g.pose_start_fraction if decaying else 0.0))
+        return groups
+
+    def param_groups(self, model: FruitNeRFModel) -> list[ParamGroup]:
+        return self._geometry_groups(model, decaying=True)
+
+    def losses(self, model: FruitNeRFModel, generator: torch.Generator) -> StepLosses:
+        return self._photometric_step(model, generator, semantic=False)
+
+    def _photometric_step(self, model: FruitNeRFModel, generator: torch.Generator, *, semantic: bool) -> StepLosses:
+        pixels = self.sampler.sample(self.batch_rays, generator)
+        jitter = torch.rand(len(pixels.view), generator=generator)
+        n_uniform = self.sampler.num_uniform(len(pixels.view))
+        out = model.render(pixels, jitter, colour=True, semantic=semantic, distortion_rays=n_uniform)
+        photo = model.photometric_loss(out, pixels, n_uniform)
+        total, logged = photo, {'photo': photo.detach()}
+        weight = self.config.geometry.distortion_weight
+        if weight > 0 and out.distortion is not None:
+            total = total + weight * out.distortion
+            logged['distortion'] = out.distortion.detach()
+        if semantic:
+            bce = model.semantic_loss(out, pixels)
+            total = total + self.config.semantic.semantic_weight * bce
+            logged['semantic_loss'] = bce.detach()
+        return StepLosses(total, logged, out.num_samples / max(len(pixels.view), 1))
+
+
+class SemanticStage(GeometryStage):
+    """Stage 2: stage 1's losses on the uniform rays plus fruit BCE on every ray (uniform and fruit-biased)."""
+
+    name: ClassVar[str] = 'semantic'
+
+    def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
+        self.config = config
+        self.iterations = config.semantic.iterations
+        self.batch_rays = config.semantic.batch_rays
+        self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
+                                           fruit_masks=dataset.semantic_masks,
+                                           fruit_fraction=config.semantic.fruit_fraction,
+                                           valid_masks=dataset.valid_masks)
+
+    def param_groups(self, model: FruitNeRFModel) -> list[ParamGroup]:
+        s = self.config.semantic
+        return [ParamGroup('semantic', tuple(model.field.semantic_parameters()), s.lr, s.lr_final),
+                *self._geometry_groups(model, decaying=False)]
+
+    def losses(self, model: FruitNeRFModel, generator: torch.Generator) -> StepLosses:
+        return self._photometric_step(model, generator, semantic=True)
+
+
+class InstanceStage:
+    """Stage 3: prototype InfoNCE on the group sampler's pixels; only the instance head trains."""
+
+    name: ClassVar[str] = 'instance'
+    updates_occupancy = False
+
+    def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
+        cfg = config.instance
+        self.config = config
+        self.iterations = cfg.iterations
+        self.sampler = GroupInstanceSampler(dataset.train_indices, dataset.instance_masks, groups=cfg.groups,
+                                            group_size=cfg.group_size, pixels_per_fruit=cfg.pixels_per_fruit,
+                                            min_pixels=config.data.min_fruit_pixels)
+
+    @property
+    def phase(self) -> Phase:
+        return Phase.training(self.name)
+
+    def param_groups(self, model: FruitNeRFModel) -> list[ParamGroup]:
+        i = self.config.instance
+        return [ParamGroup('instance', tuple(model.field.instance_parameters()), i.lr, i.lr_final)]
+
+    def losses(self, model: FruitNeRFModel, generator: torch.Generator) -> StepLosses:
+        pixels = self.sampler.sample(generator)
+        jitter = torch.rand(len(pixels.view), generator=generator)
+        out = model.render(pixels, jitter, colour=False, instance=True)
+        contrastive = model.contrastive_loss(out, pixels)
+        return StepLosses(self.config.instance.contrastive_weight * contrastive,
+                          {'contrastive_loss': contrastive.detach()}, out.num_samples / max(len(pixels.view), 1))
+
+
+def build_stages(config: TrainConfig, dataset: SceneDataset) -> tuple[TrainingStage, ...]:
+    """The three stages in order, with their samplers.
+
+    Raises:
+        DatasetError: no training view to draw rays from, or none with two fruits (before any step is trained).
+    """
+    return (GeometryStage(config, dataset), SemanticStage(config, dataset), InstanceStage(config, dataset))

@@ -1,0 +1,157 @@
+"""Training stages: learning-rate schedules per group, what each loss sees and moves (poses included)."""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pytest
+import torch
+
+from fruitnerfpp_ros.core.config_io import replace_nested
+from fruitnerfpp_ros.core.data.dataset import load_dataset
+from fruitnerfpp_ros.core.data.rays import PixelBatch
+from fruitnerfpp_ros.core.progress import ProgressEvent
+from fruitnerfpp_ros.core.training import RunDir, train
+from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
+from fruitnerfpp_ros.core.training.model import FruitNeRFModel
+from fruitnerfpp_ros.core.training.scene_box import build_scene_box
+from fruitnerfpp_ros.core.training.stages import build_stages
+from fruitnerfpp_ros.core.training.trainer import _train_step, make_optimizer, _Progress
+from test.core.training.stand_in_scene import make_sphere_scene
+from test.core.training.test_trainer import MICRO
+
+REFINED = replace_nested(MICRO, {'geometry': {'pose_lr': 1e-3, 'lr': 2e-2, 'lr_final_factor': 0.1},
+                                 'semantic': {'lr': 5e-2, 'lr_final_factor': 0.2, 'fruit_fraction': 0.25},
+                                 'instance': {'lr': 3e-2, 'lr_final_factor': 0.5}})
+
+
+@pytest.fixture(scope='module')
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_sphere_scene(tmp_path_factory.mktemp('spheres'), views=10, size=32, fruits=6, write_ply=True)
+
+
+@pytest.fixture(scope='module')
+def parts(scene: Path) -> tuple:
+    dataset = load_dataset(scene, eval_every=REFINED.data.eval_every)
+    model = FruitNeRFModel(REFINED, dataset, build_scene_box(dataset, REFINED), torch.device('cpu'))
+    return dataset, model, build_stages(REFINED, dataset)
+
+
+def test_learning_rate_of_every_group_at_the_start_and_end_of_every_stage(parts: tuple) -> None:
+    _, model, stages = parts
+    g, s, i = REFINED.geometry, REFINED.semantic, REFINED.instance
+    expected = {  # (stage, group): (lr at the first step, lr at the last step)
+        ('geometry', 'geometry'): (g.lr, g.lr * g.lr_final_factor),
+        ('geometry', 'poses'): (0.0, g.pose_lr * g.lr_final_factor),  # held for the first quarter
+        ('semantic', 'semantic'): (s.lr, s.lr * s.lr_final_factor),
+        ('semantic', 'geometry'): (g.lr * g.lr_final_factor,) * 2,   # constant at stage 1's final rate
+        ('semantic', 'poses'): (g.pose_lr * g.lr_final_factor,) * 2,
+        ('instance', 'instance'): (i.lr, i.lr * i.lr_final_factor),
+    }
+    seen = {}
+    for stage in stages:
+        for group in stage.param_groups(model):
+            seen[(stage.name, group.name)] = (group.lr_at(0.0), group.lr_at(1.0))
+    assert seen.keys() == expected.keys()
+    for key, (start, end) in expected.items():
+        assert seen[key][0] == pytest.approx(start, rel=1e-9) and seen[key][1] == pytest.approx(end, rel=1e-9), key
+    poses = next(gr for gr in stages[0].param_groups(model) if gr.name == 'poses')
+    assert poses.lr_at(g.pose_start_fraction - 1e-6) == 0.0 < poses.lr_at(g.pose_start_fraction)
+
+
+def test_the_loop_sets_each_groups_rate_on_the_optimiser(parts: tuple) -> None:
+    _, model, stages = parts
+    stage = stages[1]
+    groups = stage.param_groups(model)
+    optimizer = make_optimizer(groups, REFINED)
+    progress = _Progress(step=stage.iterations - 1, summaries=[])  # the last step of the stage
+    _train_step(stage, model, groups, optimizer, progress, torch.Generator().manual_seed(0), REFINED)
+    fraction = (stage.iterations - 1) / stage.iterations
+    assert [pg['lr'] for pg in optimizer.param_groups] == pytest.approx([gr.lr_at(fraction) for gr in groups])
+
+
+def test_stage_two_keeps_the_geometry_rate_stage_one_ended_with(scene: Path, tmp_path: Path) -> None:
+    """Read back from the optimiser state of a checkpoint taken at the end of stage 2."""
+    stop = threading.Event()
+
+    def stop_late(event: ProgressEvent) -> None:
+        if event.phase == 'train:semantic' and event.step == REFINED.semantic.iterations - 2:
+            stop.set()
+
+    config = replace_nested(REFINED, {'geometry': {'pose_lr': 0.0}})
+    train(scene, tmp_path / 'run', config, device='cpu', progress=stop_late, stop_event=stop)
+    state = load_checkpoint(RunDir(tmp_path / 'run').latest_checkpoint)
+    assert state['stage'] == 1
+    rates = sorted(group['lr'] for group in state['optimizer']['param_groups'])
+    g = config.geometry
+    assert g.lr * g.lr_final_factor in [pytest.approx(r, rel=1e-9) for r in rates]
+
+
+def _grad_norm(params: list[torch.nn.Parameter]) -> float:
+    return sum(float(p.grad.abs().sum()) for p in params if p.grad is not None)
+
+
+def test_only_the_photometric_loss_moves_the_poses(parts: tuple) -> None:
+    dataset, model, stages = parts
+    poses = list(model.pose_refinement.parameters())
+    for p in model.parameters():
+        p.requires_grad_(True)
+    with torch.no_grad():  # a small correction, so the poses are not at the identity's special point
+        model.pose_refinement.correction.add_(0.01)
+    semantic_stage, instance_stage = stages[1], stages[2]
+    pixels = semantic_stage.sampler.sample(256, torch.Generator().manual_seed(1))
+    jitter = torch.rand(256, generator=torch.Generator().manual_seed(2))
+    terms = {}
+    for name in ('photometric', 'semantic', 'contrastive'):
+        model.zero_grad(set_to_none=True)
+        if name == 'contrastive':
+            batch = instance_stage.sampler.sample(torch.Generator().manual_seed(3))
+            out = model.render(batch, torch.rand(len(batch.view)), colour=False, instance=True)
+            loss = model.contrastive_loss(out, batch)
+        else:
+            out = model.render(pixels, jitter, colour=True, semantic=True)
+            loss = model.photometric_loss(out, pixels, 256) if name == 'photometric' else \
+                model.semantic_loss(out, pixels)
+        loss.backward()
+        terms[name] = _grad_norm(poses)
+    assert terms['photometric'] > 0.0
+    assert terms['semantic'] == 0.0 and terms['contrastive'] == 0.0
+
+
+def test_semantic_batches_hold_the_fruit_share_and_colour_sees_only_uniform_rays(parts: tuple) -> None:
+    dataset, model, stages = parts
+    stage = stages[1]
+    pixels = stage.sampler.sample(400, torch.Generator().manual_seed(5))
+    n_uniform = stage.sampler.num_uniform(400)
+    assert n_uniform == 300
+    fruit = dataset.semantic_masks[pixels.view, pixels.row, pixels.col]
+    assert bool(fruit[n_uniform:].all())
+    assert float(fruit[:n_uniform].float().mean()) < 0.5  # the uniform part is mostly not fruit
+    jitter = torch.rand(400, generator=torch.Generator().manual_seed(6))
+    with torch.no_grad():
+        out = model.render(pixels, jitter, colour=True)
+        before = float(model.photometric_loss(out, pixels, n_uniform))
+        uniform = set(zip(pixels.view[:n_uniform].tolist(), pixels.row[:n_uniform].tolist(),
+                          pixels.col[:n_uniform].tolist()))
+        saved = model.images.clone()
+        for v, r, c in zip(pixels.view[n_uniform:].tolist(), pixels.row[n_uniform:].tolist(),
+                           pixels.col[n_uniform:].tolist()):
+            if (v, r, c) not in uniform:
+                model.images[v, r, c] = 1.0 - model.images[v, r, c]
+        after = float(model.photometric_loss(out, pixels, n_uniform))
+        model.images.copy_(saved)
+    assert after == before
+
+
+def test_distortion_loss_covers_the_uniform_rays_only(parts: tuple) -> None:
+    _, model, stages = parts
+    stage = stages[1]
+    pixels = stage.sampler.sample(200, torch.Generator().manual_seed(7))
+    n_uniform = stage.sampler.num_uniform(200)
+    jitter = torch.rand(200, generator=torch.Generator().manual_seed(8))
+    full = model.render(pixels, jitter, distortion_rays=n_uniform).distortion.item()
+    head = PixelBatch(pixels.view[:n_uniform], pixels.row[:n_uniform], pixels.col[:n_uniform])
+    alone = model.render(head, jitter[:n_uniform]).distortion.item()
+    assert full == pytest.approx(alone, rel=1e-5)
+    assert model.render(pixels, jitter).distortion.item() != pytest.approx(alone, rel=1e-5)
