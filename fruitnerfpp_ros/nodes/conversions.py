@@ -19,6 +19,7 @@ import numpy as np
 
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics
+from fruitnerfpp_ros.core.data.undistortion import DISTORTION_MODELS, LensUndistorter
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer
 from fruitnerfpp_ros.core.geometry import (principal_point_transforms_from_ros, quaternion_from_transform,
@@ -29,7 +30,8 @@ __all__ = [
     'REPORT_SCHEMA', 'REPORT_VERSION', 'CLOUD_DTYPE', 'CameraModel',
     'stamp_ns_from_header', 'time_msg_from_ns',
     'image_from_msg', 'mask_from_msg', 'camera_model_from_camera_info', 'intrinsics_from_camera_info',
-    'undistort_image', 'undistort_mask', 'transform_from_pose_msg', 'transform_from_transform_msg', 'add_tf_message',
+    'undistort_image', 'undistort_mask', 'undistorter_for', 'valid_pixels', 'transform_from_pose_msg',
+    'transform_from_transform_msg', 'add_tf_message',
     'pose_msg_from_transform', 'cloud_msg_from_points', 'points_from_cloud_msg', 'pose_array_from_centers',
     'markers_from_fruits', 'report_from_count', 'report_json', 'image_msg_from_array',
     'camera_info_msg_from_intrinsics',
@@ -213,40 +215,40 @@ def camera_info_msg_from_intrinsics(intrinsics: CameraIntrinsics, frame_id: str,
                       p=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
 
 
-_MAP_CACHE: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
+#: Undistorters by camera (a few cameras per process; cleared when more than 8 appear).
+_UNDISTORTERS: dict[tuple, LensUndistorter] = {}
 
 
-def _undistort_maps(camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+def undistorter_for(camera: CameraModel) -> LensUndistorter | None:
+    """The (cached) undistorter of a CameraInfo camera, or None when it has no distortion."""
+    if not camera.is_distorted:
+        return None
     key = (camera.K.tobytes(), camera.D.tobytes(), camera.distortion_model, camera.intrinsics.w,
            camera.intrinsics.h)
-    if key not in _MAP_CACHE:
-        size = (int(camera.intrinsics.w), int(camera.intrinsics.h))
-        if camera.distortion_model == 'equidistant':
-            D = np.zeros(4)
-            D[:min(4, camera.D.size)] = camera.D[:4]
-            maps = cv2.fisheye.initUndistortRectifyMap(camera.K, D, np.eye(3), camera.K, size, cv2.CV_32FC1)
-        else:
-            maps = cv2.initUndistortRectifyMap(camera.K, camera.D, None, camera.K, size, cv2.CV_32FC1)
-        if len(_MAP_CACHE) > 8:
-            _MAP_CACHE.clear()
-        _MAP_CACHE[key] = (maps[0], maps[1])
-    return _MAP_CACHE[key]
+    if key not in _UNDISTORTERS:
+        if len(_UNDISTORTERS) > 8:
+            _UNDISTORTERS.clear()
+        model = camera.distortion_model if camera.distortion_model in DISTORTION_MODELS else 'plumb_bob'
+        _UNDISTORTERS[key] = LensUndistorter(camera.K, camera.D, model, (camera.intrinsics.w, camera.intrinsics.h))
+    return _UNDISTORTERS[key]
 
 
 def undistort_image(image: np.ndarray, camera: CameraModel) -> np.ndarray:
     """Undo the lens distortion of an image (bilinear); the result has the pinhole camera ``camera.K``."""
-    if not camera.is_distorted:
-        return image
-    map_x, map_y = _undistort_maps(camera)
-    return cv2.remap(image, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    undistorter = undistorter_for(camera)
+    return image if undistorter is None else undistorter.image(image)
 
 
 def undistort_mask(mask: np.ndarray, camera: CameraModel) -> np.ndarray:
     """Undo the lens distortion of an instance mask (nearest neighbour, so ids never blend)."""
-    if not camera.is_distorted:
-        return mask
-    map_x, map_y = _undistort_maps(camera)
-    return cv2.remap(mask, map_x, map_y, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    undistorter = undistorter_for(camera)
+    return mask if undistorter is None else undistorter.labels(mask)
+
+
+def valid_pixels(camera: CameraModel) -> np.ndarray | None:
+    """[H, W] bool, False where the undistorted image holds no data; None for an undistorted camera."""
+    undistorter = undistorter_for(camera)
+    return None if undistorter is None else undistorter.valid
 
 
 # ----------------------------------------------------------------------------------------------- poses

@@ -25,7 +25,7 @@ from fruitnerfpp_ros.core.streams.time_sync import ApproximateTimeSynchronizer, 
 from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
 from fruitnerfpp_ros.nodes.conversions import (CameraModel, add_tf_message, camera_model_from_camera_info,
                                                image_from_msg, stamp_ns_from_header, transform_from_pose_msg,
-                                               undistort_image, undistort_mask)
+                                               undistort_image, undistort_mask, valid_pixels)
 from fruitnerfpp_ros.nodes.log import LogFunction, LogLevel, ThrottledLog
 from fruitnerfpp_ros.nodes.mask_source import MaskSource, mask_source_from_settings
 from fruitnerfpp_ros.nodes.params import CounterSettings
@@ -176,7 +176,8 @@ class FrameAssembler:
             instances = lambda: source.instances_for(undistorted, None)  # noqa: E731
         else:
             instances = undistort_mask(self.mask_source.instances_for(rgb, items.get('mask')), camera)
-        keyframe = Keyframe(synced.stamp_ns, undistorted, instances, T_world_optical, camera.intrinsics)
+        keyframe = Keyframe(synced.stamp_ns, undistorted, instances, T_world_optical, camera.intrinsics,
+                            valid_pixels(camera))
         decision = self.store.offer(keyframe)
         if decision is KeyframeDecision.ACCEPTED:
             n = len(self.store)

@@ -116,6 +116,14 @@ def test_undistortion_moves_a_distorted_point_back(model: str, d: list[float]) -
     assert set(np.unique(out_mask)) <= {0, 7} and out_mask.dtype == np.uint16 and (out_mask == 7).any()
 
 
+def test_valid_pixels_of_a_pincushion_camera_exclude_the_corners() -> None:
+    camera = cv.camera_model_from_camera_info(_camera_info('plumb_bob', [0.4, 0.1, 0.0, 0.0, 0.0]))
+    valid = cv.valid_pixels(camera)
+    assert valid is not None and valid.shape == (48, 64)
+    assert not valid[0, 0] and not valid[47, 63] and valid[24, 32]
+    assert cv.valid_pixels(cv.camera_model_from_camera_info(_camera_info())) is None
+
+
 def test_no_distortion_is_identity() -> None:
     camera = cv.camera_model_from_camera_info(_camera_info())
     image = np.zeros((48, 64, 3), np.uint8)

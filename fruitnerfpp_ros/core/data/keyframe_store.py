@@ -73,6 +73,8 @@ class Keyframe(NamedTuple):
             the store calls only for a frame it keeps.
         T_world_optical: 4x4 camera-to-world transform, ROS optical axes (z forward, x right, y down), metres.
         intrinsics: pinhole intrinsics in the transforms.json convention (top-left image corner at 0, 0).
+        valid: [H, W] bool, False on pixels without data (the border of an undistorted image); None = all valid.
+            Stored as the frame's ``mask_path`` (nerfstudio's pixel mask), so training never samples them.
     """
 
     stamp_ns: int
@@ -80,6 +82,7 @@ class Keyframe(NamedTuple):
     instance: np.ndarray | Callable[[], np.ndarray]
     T_world_optical: np.ndarray
     intrinsics: CameraIntrinsics
+    valid: np.ndarray | None = None
 
 
 class KeyframeSnapshot(NamedTuple):
@@ -138,7 +141,7 @@ class KeyframeStore:
         self._open()
 
     def _open(self) -> None:
-        for sub in ('images', 'instances', 'semantics'):
+        for sub in ('images', 'instances', 'semantics', 'masks'):
             (self.directory / sub).mkdir(parents=True, exist_ok=True)
         if (self.directory / TRANSFORMS_NAME).exists():
             try:
@@ -198,11 +201,16 @@ class KeyframeStore:
         write_rgb_png(self.directory / 'images' / name, keyframe.rgb)
         write_uint16_png(self.directory / 'instances' / name, instance)
         write_mask_png(self.directory / 'semantics' / name, instance > 0)
+        mask_path = None
+        if keyframe.valid is not None and not bool(np.all(keyframe.valid)):
+            write_mask_png(self.directory / 'masks' / name, keyframe.valid)
+            mask_path = f'masks/{name}'
         if self._intrinsics is None:
             self._intrinsics = keyframe.intrinsics
         own = None if keyframe.intrinsics == self._intrinsics else keyframe.intrinsics
         self._frames.append(FrameEntry(f'images/{name}', opengl_from_optical(keyframe.T_world_optical),
-                                       f'instances/{name}', f'semantics/{name}', own, int(keyframe.stamp_ns)))
+                                       f'instances/{name}', f'semantics/{name}', own, int(keyframe.stamp_ns),
+                                       mask_path))
         self._last_T = np.asarray(keyframe.T_world_optical, dtype=np.float64)
         write_transforms(self.directory, self._transforms(self._frames))
 
@@ -228,7 +236,8 @@ class KeyframeStore:
             frames = [FrameEntry(str(prefix / f.file_path), f.T_world_camera,
                                  str(prefix / f.instance_path) if f.instance_path else None,
                                  str(prefix / f.semantic_path) if f.semantic_path else None,
-                                 f.intrinsics, f.stamp_ns) for f in self._frames]
+                                 f.intrinsics, f.stamp_ns, str(prefix / f.mask_path) if f.mask_path else None)
+                      for f in self._frames]
             write_transforms(dataset_dir, self._transforms(frames))
             latest = max(f.stamp_ns or 0 for f in self._frames)
         return KeyframeSnapshot(dataset_dir, len(frames), latest)

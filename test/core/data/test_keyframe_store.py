@@ -67,3 +67,21 @@ def test_resume_snapshot_and_reset(tmp_path: Path) -> None:
     assert moved is not None and len(read_transforms(moved).frames) == 4 and len(resumed) == 0
     with pytest.raises(Exception, match='no keyframes'):
         resumed.snapshot(tmp_path / 'snap2')
+
+
+def test_a_keyframes_validity_mask_reaches_the_training_dataset(tmp_path: Path) -> None:
+    """An undistorted keyframe's border is stored as nerfstudio's mask_path and loads as invalid pixels."""
+    from fruitnerfpp_ros.core.data.dataset import load_dataset
+
+    store = KeyframeStore(tmp_path / 'kf', KeyframeConfig(min_translation_m=0.0, min_rotation_deg=0.0))
+    valid = np.ones((24, 32), bool)
+    valid[:, :4] = False
+    store.offer(_kf(0.0, 1)._replace(valid=valid))
+    store.offer(_kf(0.5, 2))  # an undistorted camera: no mask
+    frames = read_transforms(tmp_path / 'kf').frames
+    assert frames[0].mask_path == 'masks/000000.png' and frames[1].mask_path is None
+    snapshot = store.snapshot(tmp_path / 'snap')
+    dataset = load_dataset(snapshot.dataset_dir, eval_every=0)
+    assert dataset.valid_masks is not None
+    assert not bool(dataset.valid_masks[0, :, :4].any()) and bool(dataset.valid_masks[0, :, 4:].all())
+    assert bool(dataset.valid_masks[1].all())
