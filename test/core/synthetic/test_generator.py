@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import struct
 from pathlib import Path
@@ -9,8 +10,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import yaml
 
 from fruitnerfpp_ros.cli.main import main
+from fruitnerfpp_ros.core.config_io import load_config
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
@@ -119,3 +122,9 @@ def test_views_visible_lists_every_view_showing_the_fruit(small_scene: SmallScen
     others = [v for v in range(len(tf.frames)) if v not in some['views_visible']]
     gt = load_ground_truth(dataset / 'gt_fruits.json', train_views=others)
     assert not gt.seen[list(gt.ids).index(some['id'])]
+
+
+def test_config_yaml_lists_every_option_at_its_default() -> None:
+    path = Path(__file__).resolve().parents[3] / 'config' / 'synth.yaml'
+    assert load_config(SynthConfig, path) == SynthConfig()
+    assert set(yaml.safe_load(path.read_text())) == {f.name for f in dataclasses.fields(SynthConfig)}
