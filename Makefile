@@ -15,6 +15,9 @@ $(STAMP): requirements.txt requirements-ros-wheels.txt requirements-dev.txt cons
 	$(VPY) -m pip install --disable-pip-version-check -q -r requirements.txt -r requirements-ros-wheels.txt \
 		-r requirements-dev.txt -c constraints-cpu.txt
 	$(VPY) -m pip install --disable-pip-version-check -q --no-deps --no-build-isolation -e .
+	# compile fast-hdbscan's numba kernels once into their on-disk cache (the first count would pay 20-80 s)
+	$(VPY) -c "from fruitnerfpp_ros.core.clustering.hdbscan_cluster import warm_up; \
+		print(f'clustering kernels compiled in {warm_up():.0f} s')"
 	touch $@
 
 test: $(STAMP)
