@@ -1,0 +1,202 @@
+"""The accuracy suites (issue #11) as data: one :class:`SuiteScene` record per synthetic scene with ground truth.
+
+Edit the scenes here; the runner (:mod:`.runner`) and the report (:mod:`.report`) never name one. Each scene is a
+set of :class:`~fruitnerfpp_ros.core.synthetic.SynthConfig` fields (checked only when the scene runs, so a broken
+scene fails alone and is reported), whether it goes through a rosbag2 and the bag replay like a robot recording,
+and a note on the axes of variation it covers.
+
+- ``quick``: 4 scenes, about 10 minutes on a 2-core CPU with the ``cpu`` preset and ``--jobs 2``.
+- ``cpu``: 13 scenes over every axis the generator varies (fruit type, count, trajectory, camera and lens, look,
+  odometry noise, bag transport), each within about 5 minutes of ``cpu``-preset training on one core; seeds
+  differ from the ``quick`` suite's (scenes nothing was tuned on).
+- ``gpu``: the paper's Table II scenes: six fruit types at the paper's counts, 300 views of 512 px, hemisphere,
+  ``default`` preset.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import MappingProxyType
+from typing import Any, Literal, Mapping
+
+from fruitnerfpp_ros.errors import ConfigError
+
+__all__ = ['BagOptions', 'SuiteScene', 'Suite', 'SUITES', 'SUITE_NAMES', 'suite_scenes']
+
+
+@dataclass(frozen=True)
+class BagOptions:
+    """How a ``via_bag`` scene is recorded and replayed (the image format and world frame are SynthConfig fields:
+    ``bag_image_format``, ``world_frame``)."""
+
+    storage: Literal['mcap', 'sqlite3'] = 'mcap'
+    """rosbag2 storage plugin of the recording."""
+    pose_source: Literal['pose', 'tf'] = 'pose'
+    """Replay parameter ``pose_source``: the PoseStamped topic, or the /tf + /tf_static chain from the world frame
+    to the camera's optical frame."""
+    params: Mapping[str, Any] = field(default_factory=dict)
+    """Further replay parameters (``config/fruit_counter.yaml`` names), applied last."""
+
+    def __post_init__(self) -> None:
+        if self.storage not in ('mcap', 'sqlite3'):
+            raise ConfigError(f'BagOptions.storage must be mcap or sqlite3, got {self.storage!r}')
+        if self.pose_source not in ('pose', 'tf'):
+            raise ConfigError(f'BagOptions.pose_source must be pose or tf, got {self.pose_source!r}')
+        object.__setattr__(self, 'params', dict(self.params))  # a copy (picklable, unlike a mappingproxy)
+
+
+@dataclass(frozen=True)
+class SuiteScene:
+    """One scene of a suite.
+
+    Example::
+
+        SuiteScene('apple_hemi_20', dict(fruit='apple', count=20, views=48, resolution=(96, 96)), 'CI scene')
+    """
+
+    name: str
+    """Unique name within the suite; the scene's folder under the output directory."""
+    synth: Mapping[str, Any]
+    """``SynthConfig`` fields of the scene (the rest keep their defaults)."""
+    covers: str
+    """Which axes of variation the scene covers, in a few words (shown in the report)."""
+    via_bag: bool = False
+    """Record the scene as a rosbag2 and count it through the bag replay (``fruitnerfpp replay``), as a robot user
+    would; otherwise the pipeline runs on the transforms.json dataset (``fruitnerfpp run``)."""
+    bag: BagOptions = field(default_factory=BagOptions)
+    """Recording and replay options of a ``via_bag`` scene."""
+
+    def __post_init__(self) -> None:
+        if not self.name or not self.name.replace('_', '').replace('-', '').isalnum():
+            raise ConfigError(f'scene name must be letters, digits, _ and -, got {self.name!r}')
+        object.__setattr__(self, 'synth', dict(self.synth))  # a copy (picklable, unlike a mappingproxy)
+
+    def synth_config(self, device: str = 'auto') -> Any:
+        """The scene's :class:`~fruitnerfpp_ros.core.synthetic.SynthConfig`, rendered on ``device``.
+
+        Raises:
+            SynthError: a field has an impossible value.
+            ConfigError: a field SynthConfig does not have.
+        """
+        from fruitnerfpp_ros.core.synthetic import SynthConfig
+
+        try:
+            return SynthConfig(**{'device': device, **self.synth})
+        except TypeError as err:
+            raise ConfigError(f'scene {self.name}: {err}') from err
+
+
+@dataclass(frozen=True)
+class Suite:
+    """A named list of scenes and the training preset it is meant for."""
+
+    name: str
+    """``quick``, ``cpu`` or ``gpu``."""
+    preset: str
+    """Training preset used unless the caller names another."""
+    scenes: tuple[SuiteScene, ...]
+    """The scenes, in run order."""
+    description: str
+    """What the suite is for and how long it takes."""
+
+
+def _row(**fields: Any) -> dict[str, Any]:
+    """SynthConfig fields of a row drive: no sparse cloud (a robot has no SfM), plus ``fields``."""
+    return {'trajectory': 'row', 'sparse_points': 0, **fields}
+
+
+_QUICK = (
+    SuiteScene('apple_hemi_20', dict(fruit='apple', count=20, views=48, resolution=(96, 96), trajectory='hemisphere',
+                                     seed=0),
+               'the CI scene: apple, hemisphere, 96 px'),
+    SuiteScene('apple_row_60', _row(fruit='apple', count=60, views=48, resolution=(240, 180), seed=1),
+               'robot-like row drive on both sides, 4:3 camera, no sparse cloud'),
+    SuiteScene('plum_hemi_40', dict(fruit='plum', count=40, views=48, resolution=(128, 128), seed=2),
+               'small fruit (plum), hemisphere'),
+    SuiteScene('mango_hemi_40', dict(fruit='mango', count=40, views=48, resolution=(128, 128), seed=3),
+               'elongated, occluded fruit (mango), hemisphere'),
+)
+
+_CPU = (
+    SuiteScene('pear_hemi_20', dict(fruit='pear', count=20, views=48, resolution=(96, 96), seed=101),
+               'pear (pear-shaped), fewest fruits (20), hemisphere'),
+    SuiteScene('apple_hemi_40', dict(fruit='apple', count=40, views=48, resolution=(128, 128), seed=102),
+               'apple, hemisphere, new seed'),
+    SuiteScene('lemon_hemi_60', dict(fruit='lemon', count=60, views=48, resolution=(160, 160), seed=103,
+                                     appearance_variation=0.6),
+               'lemon (elongated), varied look'),
+    SuiteScene('mango_hemi_100', dict(fruit='mango', count=100, views=64, resolution=(192, 192), seed=104,
+                                      appearance_variation=0.5),
+               'mango (occluded, yellow-green), 100 fruits, varied look'),
+    SuiteScene('apple_hemi_200', dict(fruit='apple', count=200, views=64, resolution=(256, 256), seed=105,
+                                      appearance_variation=0.3),
+               'dense tree (200 apples), 256 px'),
+    SuiteScene('plum_row_120', _row(fruit='plum', count=120, views=64, resolution=(240, 180), seed=106,
+                                    appearance_variation=0.5),
+               'small fruit on a row drive, standoff 2 m, camera 1.2 m, pitch 5 deg, varied look'),
+    SuiteScene('pear_row_far', _row(fruit='pear', count=80, views=64, resolution=(320, 240), seed=107,
+                                    row_standoff_m=3.0, camera_height_m=2.0, camera_pitch_deg=0.0),
+               'row, far standoff 3 m, high mast 2 m, level camera, 320x240'),
+    SuiteScene('peach_row_near', _row(fruit='peach', count=50, views=56, resolution=(240, 180), seed=108,
+                                      row_standoff_m=1.5, camera_height_m=0.8, camera_pitch_deg=10.0,
+                                      appearance_variation=0.4),
+               'peach, row, near standoff 1.5 m, low camera 0.8 m, pitch 10 deg, varied look'),
+    SuiteScene('mixed_row_150', _row(fruit='mixed', count=150, views=64, resolution=(240, 180), seed=109,
+                                     appearance_variation=0.7),
+               'all six fruit types on one tree, row, strongly varied look'),
+    SuiteScene('apple_row_lens', _row(fruit='apple', count=80, views=64, resolution=(320, 240), seed=110,
+                                      fy_scale=1.02, principal_offset_px=(6.0, -4.0),
+                                      distortion=(-0.12, 0.03, 0.001, -0.001, 0.0)),
+               'real camera: 4:3, fy = 1.02 fx, principal point off centre, plumb_bob distortion'),
+    SuiteScene('apple_row_pose_noise', _row(fruit='apple', count=60, views=64, resolution=(240, 180), seed=111,
+                                            pose_noise_m=0.02, pose_noise_deg=1.0),
+               'odometry error: 2 cm / 1 deg pose noise, row'),
+    SuiteScene('apple_bag_odom', _row(fruit='apple', count=60, views=56, resolution=(240, 180), seed=112,
+                                      bag_image_format='jpeg', world_frame='odom', appearance_variation=0.3),
+               'robot recording: rosbag2 (MCAP), JPEG CompressedImage, odom frame, poses from /tf',
+               via_bag=True, bag=BagOptions(storage='mcap', pose_source='tf')),
+    SuiteScene('peach_bag_map', _row(fruit='peach', count=60, views=56, resolution=(240, 180), seed=113,
+                                     bag_image_format='jpeg', world_frame='map',
+                                     distortion=(-0.08, 0.01, 0.0, 0.0, 0.0), appearance_variation=0.5),
+               'robot recording: rosbag2 (sqlite3), JPEG CompressedImage, map frame, PoseStamped, '
+               'plumb_bob CameraInfo',
+               via_bag=True, bag=BagOptions(storage='sqlite3', pose_source='pose')),
+)
+
+#: The paper's fruit counts (Table II).
+_PAPER_COUNTS = (('apple', 283), ('plum', 745), ('lemon', 326), ('pear', 250), ('peach', 152), ('mango', 1150))
+
+_GPU = tuple(
+    SuiteScene(f'{fruit}_paper_{count}', dict(fruit=fruit, count=count, views=300, resolution=(512, 512),
+                                              trajectory='hemisphere', seed=0),
+               f"the paper's {fruit} scene: {count} fruits, 300 views of 512 px, hemisphere")
+    for fruit, count in _PAPER_COUNTS)
+
+#: Every suite by name.
+SUITES: Mapping[str, Suite] = MappingProxyType({
+    'quick': Suite('quick', 'cpu', _QUICK, 'about 10 min on a 2-core CPU with --jobs 2'),
+    'cpu': Suite('cpu', 'cpu', _CPU, 'every axis of the generator, each scene within ~5 min of cpu-preset training '
+                 'on one core'),
+    'gpu': Suite('gpu', 'default', _GPU, "the paper's Table II scenes on a GPU (default preset)"),
+})
+SUITE_NAMES = tuple(SUITES)
+
+
+def suite_scenes(suite: str, names: str | list[str] | tuple[str, ...] | None = None) -> tuple[SuiteScene, ...]:
+    """The scenes of ``suite``, or only those named (``'a,b'`` or a list), in suite order.
+
+    Raises:
+        ConfigError: an unknown suite or scene name (the message lists the known ones).
+    """
+    if suite not in SUITES:
+        raise ConfigError(f'unknown suite {suite!r}; expected one of {", ".join(SUITE_NAMES)}')
+    scenes = SUITES[suite].scenes
+    if names is None:
+        return scenes
+    wanted = [n.strip() for n in (names.split(',') if isinstance(names, str) else names) if n.strip()]
+    known = {s.name for s in scenes}
+    unknown = [n for n in wanted if n not in known]
+    if unknown or not wanted:
+        raise ConfigError(f'unknown scene(s) {", ".join(unknown) or "(none named)"} in suite {suite}; its scenes: '
+                          f'{", ".join(s.name for s in scenes)}')
+    return tuple(s for s in scenes if s.name in wanted)
