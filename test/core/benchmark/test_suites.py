@@ -75,8 +75,8 @@ def test_gpu_suite_is_the_papers_table() -> None:
 
 
 def test_suite_scenes_selects_by_name_in_suite_order() -> None:
-    assert [s.name for s in suite_scenes('quick', 'mango_hemi_40, apple_hemi_20')] == ['apple_hemi_20',
-                                                                                         'mango_hemi_40']
+    chosen = suite_scenes('quick', 'mango_hemi_40, apple_hemi_20')
+    assert [s.name for s in chosen] == ['apple_hemi_20', 'mango_hemi_40']
     assert suite_scenes('quick') == SUITES['quick'].scenes
     with pytest.raises(ConfigError, match="unknown suite 'fast'; expected one of quick, cpu, gpu"):
         suite_scenes('fast')
