@@ -1,0 +1,297 @@
+"""One scene of an accuracy suite, run in its own process: generate -> (fallback masks) -> count -> score.
+
+:func:`run_scene` generates the scene under ``OUT/<scene>/data`` (plus ``OUT/<scene>/bag`` for a bag scene), runs
+the pipeline into ``OUT/<scene>/run`` (a bag scene: the bag replay, through the caller's :data:`BagRunner`, since
+the core cannot import the ROS layer), runs the tracking peer on the same instance masks, scores both against the
+ground truth in one way, draws ``OUT/<scene>/count.png`` and writes ``OUT/<scene>/scene.json``. Whatever the
+scene prints goes to ``OUT/<scene>/scene.log``. A failing step is recorded in the result, never raised: the
+suite goes on.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import resource
+import shutil
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterator
+
+import numpy as np
+
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
+from fruitnerfpp_ros.core.benchmark.result import CounterScore, SceneResult
+from fruitnerfpp_ros.core.benchmark.suites import SuiteScene
+
+__all__ = ['BagReplayRequest', 'BagReplayOutcome', 'BagRunner', 'SceneJob', 'run_scene', 'training_views',
+           'SCENE_LOG', 'SCENE_JSON', 'PICTURE']
+
+SCENE_LOG, SCENE_JSON, PICTURE, TRACK_COUNTS = 'scene.log', 'scene.json', 'count.png', 'track_counts.json'
+
+
+@dataclass(frozen=True)
+class BagReplayRequest:
+    """What a bag scene asks of the bag replay."""
+
+    bag_path: Path
+    """The scene's rosbag2."""
+    run_dir: Path
+    """The replay's run directory (keyframes land in ``run_dir/keyframes``)."""
+    parameters: dict[str, Any]
+    """fruit_counter / replay parameters (``config/fruit_counter.yaml`` names), as a robot user's params file."""
+
+
+@dataclass(frozen=True)
+class BagReplayOutcome:
+    """What the bag replay produced."""
+
+    keyframes_dir: Path
+    """The transforms.json dataset of the collected keyframes."""
+    pipeline: Any
+    """The replay's :class:`~fruitnerfpp_ros.core.pipeline.PipelineResult`."""
+    keyframes_s: float
+    """Wall seconds from the replay's start to its first training event (keyframe collection)."""
+
+
+#: Runs one bag replay (``fruitnerfpp replay``); a module-level function, as it crosses into the scene process.
+BagRunner = Callable[[BagReplayRequest], BagReplayOutcome]
+
+
+@dataclass(frozen=True)
+class SceneJob:
+    """Everything a scene process needs (picklable)."""
+
+    scene: SuiteScene
+    """The scene."""
+    out_dir: Path
+    """The suite's output directory (the scene writes into ``out_dir/<name>``, replacing what was there)."""
+    masks: str
+    """``gt``: the dataset's instance masks; ``fallback``: the built-in segmenter's, for both counters."""
+    device: str
+    """Torch device for rendering and training."""
+    preset: str
+    """Training preset name (the bag replay's ``preset`` parameter)."""
+    train_config: Any
+    """The resolved TrainConfig (preset plus ``--config``'s train section)."""
+    export_config: Any
+    """The ExportConfig."""
+    cluster_config: Any
+    """The ClusterConfig."""
+    config_file: str = ''
+    """The ``--config`` pipeline file, for the bag replay's ``config_file`` parameter ('' = none)."""
+    bag_runner: BagRunner | None = None
+    """Runs a bag replay; required by ``via_bag`` scenes."""
+
+
+@dataclass
+class _Record:
+    """What the scene measured so far (mutable while the scene runs)."""
+
+    errors: list[str] = field(default_factory=list)
+    times: dict[str, float] = field(default_factory=dict)
+    values: dict[str, Any] = field(default_factory=dict)
+
+    def fail(self, step: str, err: BaseException) -> None:
+        self.errors.append(f'{step}: {type(err).__name__}: {err}')
+        traceback.print_exception(err)
+
+    @contextlib.contextmanager
+    def timed(self, key: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.times[key] = self.times.get(key, 0.0) + time.perf_counter() - start
+
+
+@contextlib.contextmanager
+def _output_to(path: Path) -> Iterator[None]:
+    """Send this process's stdout and stderr (file descriptors 1 and 2, C libraries included) to ``path``."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = os.dup(1), os.dup(2)
+    with open(path, 'a', buffering=1) as log:
+        os.dup2(log.fileno(), 1)
+        os.dup2(log.fileno(), 2)
+        try:
+            yield
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os.dup2(saved[0], 1)
+            os.dup2(saved[1], 2)
+            os.close(saved[0])
+            os.close(saved[1])
+
+
+def training_views(dataset_dir: Path, eval_every: int, gt_path: Path) -> np.ndarray | None:
+    """The ground truth's view indices of the frames a run of ``dataset_dir`` trained on (the held-out split
+    left out), matched by stamp; None when the ground truth or the frames carry no stamps."""
+    from fruitnerfpp_ros.core.data.dataset import split_indices
+    from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+    from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
+
+    frames = read_transforms(dataset_dir).frames
+    train, _ = split_indices(len(frames), eval_every)
+    stamps = [frames[i].stamp_ns for i in train]
+    gt = load_ground_truth(gt_path)
+    if gt.view_stamps_ns is None or any(s is None for s in stamps):
+        return None
+    return gt.views_at_stamps(stamps)
+
+
+def _eval_every(run_dir: Path, job: SceneJob) -> int:
+    """``data.eval_every`` the run trained with (its config.yaml), else the job's."""
+    from fruitnerfpp_ros.core.config_io import load_config
+    from fruitnerfpp_ros.core.training import RunDir, TrainConfig
+
+    path = RunDir(run_dir).config_path
+    return load_config(TrainConfig, path).data.eval_every if path.is_file() else job.train_config.data.eval_every
+
+
+def _bag_parameters(job: SceneJob, config: Any) -> dict[str, Any]:
+    """The replay parameters a robot user would write for this recording."""
+    from fruitnerfpp_ros.core.synthetic import image_topic
+
+    parameters = {'image_topic': image_topic(config.bag_image_format),
+                  'compressed_image': config.bag_image_format == 'jpeg', 'world_frame': config.world_frame,
+                  'pose_source': job.scene.bag.pose_source, 'preset': job.preset, 'device': job.device,
+                  'config_file': job.config_file, 'mask_source': 'fallback' if job.masks == 'fallback' else 'topic'}
+    return {**parameters, **job.scene.bag.params}
+
+
+def _count_ours(job: SceneJob, scene_dir: Path, data_dir: Path, record: _Record, config: Any) -> tuple[Any, Path]:
+    """Our count (the pipeline, or the bag replay); returns (PipelineResult, the dataset it trained on)."""
+    run_dir = scene_dir / 'run'
+    if job.scene.via_bag:
+        if job.bag_runner is None:
+            raise RuntimeError('a via_bag scene needs a bag runner (run it through `fruitnerfpp bench`)')
+        started = time.perf_counter()
+        try:
+            outcome = job.bag_runner(BagReplayRequest(scene_dir / 'bag', run_dir, _bag_parameters(job, config)))
+        finally:
+            record.times['replay'] = time.perf_counter() - started
+        record.times['keyframes'] = outcome.keyframes_s
+        return outcome.pipeline, outcome.keyframes_dir
+    from fruitnerfpp_ros.core.clustering.workers import partition_pool
+    from fruitnerfpp_ros.core.pipeline import run_pipeline
+
+    with partition_pool(job.cluster_config.n_jobs) as pool:
+        result = run_pipeline(data_dir, run_dir, train_config=job.train_config, export_config=job.export_config,
+                              cluster_config=job.cluster_config, device=job.device, executor=pool)
+    return result, data_dir
+
+
+def _pipeline_figures(result: Any, record: _Record) -> None:
+    """Held-out figures, scene box, voxel, measured diameter and step times of a PipelineResult."""
+    summary = result.train_summary
+    stages = tuple(getattr(summary, 'stages', ()) or ())
+    for stage in stages:
+        record.times[stage.name] = float(stage.wall_s)
+    if stages:
+        last = stages[-1].eval
+        record.values.update(psnr_db=float(last.psnr), semantic_iou=float(last.semantic_iou),
+                             instance_acc=float(last.instance_acc))
+    aabb = getattr(summary, 'aabb', None)
+    if aabb is not None:
+        box = np.asarray(aabb, np.float64).reshape(2, 3)
+        record.values['box_size_m'] = tuple(float(v) for v in box[1] - box[0])
+    diameter = getattr(getattr(summary, 'scale', None), 'fruit_diameter_m', None)
+    if diameter is None:
+        diameter = getattr(result.cloud, 'fruit_diameter_m', None)
+    if diameter is not None:
+        record.values['diameter_m'] = float(diameter)
+    report = result.export_report
+    if report is not None:
+        record.values['voxel_mm'] = float(report.voxel_size_m) * 1e3
+        record.times['export'] = float(report.time_s)
+    if 'time_total_s' in result.count.stats:
+        record.times['count'] = float(result.count.stats['time_total_s'])
+
+
+def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
+    """Every step of the scene; raises only when nothing can be scored (no scene)."""
+    from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+    from fruitnerfpp_ros.core.device import use_cpu_threads
+    from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
+    from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
+    from fruitnerfpp_ros.core.synthetic import generate_orchard
+
+    config = job.scene.synth_config(job.device)
+    use_cpu_threads(job.train_config.cpu_threads, job.device)  # this process is the scene's alone
+    data_dir = scene_dir / 'data'
+    with record.timed('synth'):
+        synth = generate_orchard(config, data_dir, bag=scene_dir / 'bag' if job.scene.via_bag else None,
+                                 bag_storage=job.scene.bag.storage)
+    gt_all = load_ground_truth(synth.gt_path)
+    record.values.update(gt_count=len(gt_all), gt_diameter_m=float(np.median(gt_all.diameters)))
+    if job.masks == 'fallback' and not job.scene.via_bag:  # a bag scene's replay segments its own images
+        from fruitnerfpp_ros.core.segmentation import SegmenterConfig, build_segmenter
+        from fruitnerfpp_ros.core.segmentation.dataset_masks import segment_dataset
+        with record.timed('segment'):
+            segment_dataset(data_dir, build_segmenter(SegmenterConfig(method='fallback')), overwrite=True)
+
+    pipeline, counted_dir = None, scene_dir / 'run' / 'keyframes' if job.scene.via_bag else data_dir
+    try:
+        pipeline, counted_dir = _count_ours(job, scene_dir, data_dir, record, config)
+        _pipeline_figures(pipeline, record)
+    except Exception as err:  # noqa: BLE001 - reported in the scene's row; the peer still runs
+        record.fail('ours', err)
+    record.values['n_views'] = len(read_transforms(counted_dir).frames)
+    train_views = training_views(counted_dir, _eval_every(scene_dir / 'run', job), synth.gt_path)
+    gt = load_ground_truth(synth.gt_path, train_views=train_views)
+    record.values['gt_seen'] = int(gt.seen.sum())
+    if pipeline is not None:
+        metrics = evaluate_counts(pipeline.count.centers(), gt)
+        record.values['ours'] = CounterScore.from_metrics(metrics)
+        try:
+            from fruitnerfpp_ros.core.evaluation.picture import write_count_picture
+            write_count_picture(scene_dir / PICTURE, counted_dir, pipeline.count.centers(), gt, metrics)
+            record.values['picture'] = f'{job.scene.name}/{PICTURE}'
+        except Exception as err:  # noqa: BLE001
+            record.fail('picture', err)
+    try:
+        from fruitnerfpp_ros.core.tracking import track_dataset, write_track_counts
+        with record.timed('tracking'):
+            tracked = track_dataset(counted_dir)
+        write_track_counts(scene_dir / TRACK_COUNTS, tracked, source=str(counted_dir))
+        record.values['peer'] = CounterScore.from_metrics(evaluate_counts(tracked.centers(), gt))
+    except Exception as err:  # noqa: BLE001
+        record.fail('peer', err)
+
+
+def _memory(record: _Record) -> None:
+    record.values['peak_rss_mb'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+    torch = sys.modules.get('torch')
+    if torch is not None and torch.cuda.is_available() and torch.cuda.is_initialized():
+        record.values['cuda_max_allocated_mb'] = torch.cuda.max_memory_allocated() / 2.0 ** 20
+
+
+def run_scene(job: SceneJob) -> SceneResult:
+    """Run one scene end to end and return what it measured (failures recorded, not raised).
+
+    Meant for a process of its own (peak memory is the process's): it sets torch's CPU threads, redirects the
+    process's output to ``scene.log`` while it runs, and replaces ``out_dir/<scene>``.
+    """
+    started = time.perf_counter()
+    scene_dir = Path(job.out_dir) / job.scene.name
+    if scene_dir.exists():
+        shutil.rmtree(scene_dir)
+    scene_dir.mkdir(parents=True)
+    record = _Record()
+    with _output_to(scene_dir / SCENE_LOG):
+        try:
+            _steps(job, scene_dir, record)
+        except Exception as err:  # noqa: BLE001 - a scene's failure is reported, the suite goes on
+            record.fail('scene', err)
+        record.times['total'] = time.perf_counter() - started
+        _memory(record)
+    result = SceneResult(job.scene.name, job.scene.covers, job.scene.via_bag, '; '.join(record.errors),
+                         times_s=dict(record.times), **record.values)
+    atomic_write_text(scene_dir / SCENE_JSON, json.dumps(result.to_json(), indent=1))
+    return result

@@ -1,0 +1,87 @@
+"""The runner, end to end on one micro scene in its own process, beside a scene that fails and one that dies."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+
+import pytest
+
+from fruitnerfpp_ros.core.benchmark.result import SceneResult
+from fruitnerfpp_ros.core.benchmark.runner import ACCURACY_JSON, ACCURACY_MD, SuiteOptions, run_suite
+from fruitnerfpp_ros.core.benchmark.scene_run import SCENE_JSON, SCENE_LOG, SceneJob
+from fruitnerfpp_ros.core.benchmark.suites import BagOptions, SuiteScene
+from fruitnerfpp_ros.errors import ConfigError
+
+#: A tree small enough for a one-minute test: 8 apples, 12 views of 48 px.
+MICRO = SuiteScene('micro', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'micro scene')
+#: Fails in its process: SynthConfig has no such fruit.
+BAD = SuiteScene('bad', dict(fruit='banana'), 'a broken definition')
+
+
+def _options(**values: object) -> SuiteOptions:
+    from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    from fruitnerfpp_ros.core.config_io import replace_nested
+    from fruitnerfpp_ros.core.export.config import ExportConfig
+    from fruitnerfpp_ros.core.training import TrainConfig
+
+    micro = replace_nested(TrainConfig.preset('tiny'), {'geometry': {'iterations': 5}, 'semantic': {'iterations': 5},
+                                                        'instance': {'iterations': 5}, 'eval_max_views': 1})
+    return SuiteOptions('tiny', micro, ExportConfig(), ClusterConfig(n_jobs=1), device='cpu', **values)
+
+
+def test_one_micro_scene_end_to_end_and_a_failing_one(tmp_path: Path) -> None:
+    finished: list[str] = []
+    suite = run_suite('test', [MICRO, BAD], tmp_path, _options(jobs=2), command='fruitnerfpp bench ...',
+                      on_scene_done=lambda result: finished.append(result.name))
+    assert sorted(finished) == ['bad', 'micro'] and [s.name for s in suite.scenes] == ['micro', 'bad']
+    micro, bad = suite.scenes
+    assert micro.ok, micro.error
+    assert micro.gt_count == 8 and 0 < micro.gt_seen <= 8 and micro.n_views == 12
+    assert micro.ours is not None and micro.peer is not None and micro.peer.count >= 1
+    assert 0.0 <= micro.ours.f1 <= 1.0 and 0.0 <= micro.peer.f1 <= 1.0
+    assert math.isfinite(micro.psnr_db) and micro.box_size_m is not None and micro.voxel_mm > 0
+    assert 0.05 < micro.gt_diameter_m < 0.1 and micro.diameter_m > 0 and micro.peak_rss_mb > 100
+    assert {'synth', 'geometry', 'semantic', 'instance', 'export', 'tracking', 'total'} <= set(micro.times_s)
+    assert micro.picture == 'micro/count.png' and (tmp_path / micro.picture).stat().st_size > 1000
+    scene_dir = tmp_path / 'micro'
+    assert (scene_dir / 'data' / 'gt_fruits.json').is_file() and (scene_dir / 'run' / 'counts.json').is_file()
+    assert (scene_dir / 'track_counts.json').is_file() and (scene_dir / SCENE_LOG).is_file()
+    assert json.loads((scene_dir / SCENE_JSON).read_text())['name'] == 'micro'
+
+    assert not bad.ok and bad.ours is None and bad.peer is None
+    assert "SynthError: unknown fruit type 'banana'" in bad.error
+
+    data = json.loads((tmp_path / ACCURACY_JSON).read_text())
+    assert data['suite'] == 'test' and data['summary']['failed'] == ['bad'] and len(data['scenes']) == 2
+    assert data['summary']['mean_f1'] == pytest.approx(micro.ours.f1)
+    text = (tmp_path / ACCURACY_MD).read_text()
+    assert '[count.png](micro/count.png)' in text and "failed: scene: SynthError: unknown fruit type 'banana'" in text
+
+
+def _dies_or_passes(job: SceneJob) -> SceneResult:
+    """Scene function of the crash test: the scene named ``dies`` kills its process."""
+    if job.scene.name == 'dies':
+        os._exit(3)
+    return SceneResult(job.scene.name, job.scene.covers, times_s={'total': 0.0})
+
+
+def test_a_dead_scene_process_fails_only_its_scene(tmp_path: Path) -> None:
+    scenes = [SuiteScene('dies', {}, 'x'), SuiteScene('lives', {}, 'y')]
+    suite = run_suite('test', scenes, tmp_path, _options(jobs=2), scene_fn=_dies_or_passes)
+    dies, lives = suite.scenes
+    assert 'scene process: BrokenProcessPool' in dies.error and lives.ok
+
+
+def test_refuses_duplicates_and_bag_scenes_without_a_replay(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match='repeated: micro'):
+        run_suite('test', [MICRO, MICRO], tmp_path, _options())
+    bag = SuiteScene('bagged', {}, 'x', via_bag=True, bag=BagOptions(pose_source='tf'))
+    with pytest.raises(ConfigError, match='bag scenes bagged need the bag replay'):
+        run_suite('test', [bag], tmp_path, _options())
+    with pytest.raises(ConfigError, match='masks must be one of gt, fallback'):
+        _options(masks='sam')
+    with pytest.raises(ConfigError, match='jobs must be a positive integer'):
+        _options(jobs=0)
