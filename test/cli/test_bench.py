@@ -1,0 +1,85 @@
+"""``fruitnerfpp bench accuracy``: one micro scene through the command line (fallback masks, --config, --log), a
+bag scene's replay parameters as a robot user writes them, and one-line errors."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import pytest
+
+from fruitnerfpp_ros.cli import bench
+from fruitnerfpp_ros.cli.main import main
+from fruitnerfpp_ros.core.benchmark.result import CounterScore, SceneResult
+from fruitnerfpp_ros.core.benchmark.runner import SuiteOptions, run_suite
+from fruitnerfpp_ros.core.benchmark.suites import BagOptions, SuiteScene
+
+MICRO_CONFIG = ('train:\n  geometry: {iterations: 5}\n  semantic: {iterations: 5}\n  instance: {iterations: 5}\n'
+                '  eval_max_views: 1\nclustering:\n  n_jobs: 1\n')
+
+
+def test_micro_scene_with_fallback_masks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    micro = SuiteScene('micro', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'micro')
+    monkeypatch.setattr(bench, 'suite_scenes', lambda suite, names: (micro,))  # the suites' scenes take minutes
+    config, out, log = tmp_path / 'micro.yaml', tmp_path / 'out', tmp_path / 'log.md'
+    config.write_text(MICRO_CONFIG)
+    code = main(['bench', 'accuracy', '--suite', 'quick', '--out', str(out), '--preset', 'tiny', '--masks',
+                 'fallback', '--config', str(config), '--device', 'cpu', '--log', str(log)])
+    printed = capsys.readouterr()
+    scene = json.loads((out / 'accuracy.json').read_text())['scenes'][0]
+    assert code == 0, scene['error']
+    assert scene['times_s']['segment'] > 0  # the fallback segmenter replaced the ground-truth masks
+    transforms = json.loads((out / 'micro' / 'data' / 'transforms.json').read_text())
+    assert transforms['frames'][0]['instance_path'].startswith('instances/')
+    assert 'quick suite: 1 scene(s), preset tiny, masks fallback, device cpu' in printed.out
+    assert 'micro: count ' in printed.out + printed.err and 'tables: ' in printed.out
+    section = log.read_text()
+    assert f'--masks fallback --jobs 1 --device cpu --config {config}' in section
+    assert (out / 'micro' / 'count.png').is_file()
+
+
+def test_bag_scene_replays_with_the_recordings_topics_and_frame(tmp_path: Path) -> None:
+    """JPEG images, the odom frame and poses from /tf reach the keyframes; a replay that then fails (here: more
+    keyframes demanded than the bag holds) is reported, and the peer counts the collected keyframes."""
+    from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    from fruitnerfpp_ros.core.export.config import ExportConfig
+    from fruitnerfpp_ros.core.training import TrainConfig
+
+    scene = SuiteScene('bag', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5,
+                                   bag_image_format='jpeg', world_frame='odom'), 'bag',
+                       via_bag=True, bag=BagOptions(pose_source='tf', params={'min_keyframes': 1000}))
+    options = SuiteOptions('tiny', TrainConfig.preset('tiny'), ExportConfig(), ClusterConfig(), device='cpu')
+    result = run_suite('test', [scene], tmp_path, options, bag_runner=bench.replay_scene_bag).scenes[0]
+    assert 'ours: BagError: ' in result.error and 'only 12 keyframe(s), fewer than min_keyframes=1000' in result.error
+    assert result.n_views == 12 and result.peer is not None and result.ours is None
+    assert (tmp_path / 'bag' / 'run' / 'keyframes' / 'transforms.json').is_file()
+
+
+@pytest.mark.parametrize('extra, message', [
+    (['--scenes', 'nope'], 'unknown scene(s) nope in suite quick'),
+    (['--config', 'CONFIG'], 'unknown section(s) trian'),
+    (['--device', 'tpu'], "unknown device 'tpu'"),
+])
+def test_errors_are_one_line(extra: list[str], message: str, tmp_path: Path,
+                             capsys: pytest.CaptureFixture[str]) -> None:
+    config = tmp_path / 'bad.yaml'
+    config.write_text('trian: {}\n')
+    extra = [str(config) if word == 'CONFIG' else word for word in extra]
+    assert main(['bench', 'accuracy', '--suite', 'quick', '--out', str(tmp_path / 'out'), *extra]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith('fruitnerfpp bench: error: ') and message in err and err.count('\n') == 1
+    assert not (tmp_path / 'out').exists()
+
+
+def test_scene_line_and_command_line() -> None:
+    done = SceneResult('a', ours=CounterScore(19, 19, 1.0, 0.95, 0.974), peer=CounterScore(22, 18, 0.82, 0.9, 0.857),
+                       gt_count=20, times_s={'total': 84.2})
+    assert bench.scene_line(done) == 'a: count 19/20 F1 0.974 (peer 22, F1 0.857) 84 s'
+    failed = SceneResult('b', error='scene: SynthError: no', times_s={'total': 0.3})
+    assert bench.scene_line(failed) == 'b: 0 s FAILED: scene: SynthError: no'
+    args = argparse.Namespace(suite='cpu', out=Path('my out'), masks='gt', jobs=2, device='auto', scenes='a,b',
+                              config=None)
+    assert bench.command_line(args, 'cpu') == ("fruitnerfpp bench accuracy --suite cpu --out 'my out' --preset cpu "
+                                               '--masks gt --jobs 2 --device auto --scenes a,b')
