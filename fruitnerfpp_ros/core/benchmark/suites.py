@@ -11,6 +11,7 @@ and a note on the axes of variation it covers.
   differ from the ``quick`` suite's (scenes nothing was tuned on).
 - ``gpu``: the paper's Table II scenes: six fruit types at the paper's counts, 300 views of 512 px, hemisphere,
   ``default`` preset.
+- ``smoke``: two micro scenes (dataset and bag path) that check the harness itself, ``tiny`` preset.
 """
 
 from __future__ import annotations
@@ -172,12 +173,23 @@ _GPU = tuple(
                f"the paper's {fruit} scene: {count} fruits, 300 views of 512 px, hemisphere")
     for fruit, count in _PAPER_COUNTS)
 
+_SMOKE = (
+    SuiteScene('apple_micro', dict(fruit='apple', count=10, views=16, resolution=(64, 64), seed=7),
+               'harness check: the dataset path'),
+    SuiteScene('apple_micro_bag', dict(fruit='apple', count=10, views=16, resolution=(64, 64), seed=8,
+                                       bag_image_format='jpeg', world_frame='odom'),
+               'harness check: the bag path (JPEG, odom frame, poses from /tf)',
+               via_bag=True, bag=BagOptions(pose_source='tf')),
+)
+
 #: Every suite by name.
 SUITES: Mapping[str, Suite] = MappingProxyType({
     'quick': Suite('quick', 'cpu', _QUICK, 'about 10 min on a 2-core CPU with --jobs 2'),
     'cpu': Suite('cpu', 'cpu', _CPU, 'every axis of the generator, each scene within ~5 min of cpu-preset training '
                  'on one core'),
     'gpu': Suite('gpu', 'default', _GPU, "the paper's Table II scenes on a GPU (default preset)"),
+    'smoke': Suite('smoke', 'tiny', _SMOKE, 'two micro scenes that check the harness, not the accuracy (with '
+                   '--config bench/accuracy_smoke.yaml: a minute or two)'),
 })
 SUITE_NAMES = tuple(SUITES)
 

@@ -27,7 +27,8 @@ def test_suites_have_unique_names_and_their_presets() -> None:
     for suite in SUITES.values():
         names = [s.name for s in suite.scenes]
         assert len(names) == len(set(names))
-    assert {n: s.preset for n, s in SUITES.items()} == {'quick': 'cpu', 'cpu': 'cpu', 'gpu': 'default'}
+    presets = {name: suite.preset for name, suite in SUITES.items()}
+    assert presets == {'quick': 'cpu', 'cpu': 'cpu', 'gpu': 'default', 'smoke': 'tiny'}
 
 
 def test_quick_suite_is_the_four_scenes() -> None:
@@ -78,7 +79,7 @@ def test_suite_scenes_selects_by_name_in_suite_order() -> None:
     chosen = suite_scenes('quick', 'mango_hemi_40, apple_hemi_20')
     assert [s.name for s in chosen] == ['apple_hemi_20', 'mango_hemi_40']
     assert suite_scenes('quick') == SUITES['quick'].scenes
-    with pytest.raises(ConfigError, match="unknown suite 'fast'; expected one of quick, cpu, gpu"):
+    with pytest.raises(ConfigError, match="unknown suite 'fast'; expected one of quick, cpu, gpu, smoke"):
         suite_scenes('fast')
     with pytest.raises(ConfigError, match='unknown scene.* nope in suite quick; its scenes: apple_hemi_20'):
         suite_scenes('quick', 'apple_hemi_20,nope')
