@@ -5,10 +5,17 @@ a :class:`KeyframeStore`. The store keeps a frame when the camera moved enough s
 image is sharp, and writes it immediately (so a crash loses nothing collected)::
 
     RUN_DIR/keyframes/
-        transforms.json       rewritten atomically after every keyframe
+        frames.jsonl          one line per keyframe, appended once its images are on disk (keyframe_journal.py)
+        transforms.json       rewritten atomically: after every keyframe while there are few, then at most every
+                              ``index_period_s``, and on flush / snapshot / reset
         images/000000.png     RGB
         instances/000000.png  16-bit instance ids (0 = background)
         semantics/000000.png  fruit = 255
+
+Storing a keyframe costs O(1) however many there are (a journal line, not a rewritten index). A keyframe is
+stored whole or not at all: when a write fails (a full disk), its files are removed, the store raises a
+:class:`DatasetError` saying so and the keyframes stored before stay intact. Opening a directory resumes it:
+``transforms.json`` plus the journal lines it lacks.
 
 The directory is a dataset that ``fruitnerfpp train`` reads. :meth:`KeyframeStore.snapshot` writes a frozen
 transforms.json elsewhere (pointing at the same image files) so training sees a fixed frame list while new
@@ -29,6 +36,7 @@ from typing import Callable, NamedTuple
 import cv2
 import numpy as np
 
+from fruitnerfpp_ros.core.data.keyframe_journal import JournalEntry, append_entry, read_entries, trim_torn_tail
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
 from fruitnerfpp_ros.core.data.transforms_format import (TRANSFORMS_NAME, CameraIntrinsics, FrameEntry,
                                                          TransformsFile, read_transforms, write_transforms)
@@ -106,6 +114,10 @@ class KeyframeDecision(str, Enum):
     TOO_CLOSE = 'too_close'
     BLURRY = 'blurry'
     FULL = 'full'
+    DUPLICATE_STAMP = 'duplicate_stamp'
+    """A kept keyframe has the same stamp (a repeated message)."""
+    ALREADY_STORED = 'already_stored'
+    """Not newer than the newest keyframe of a store opened with ``resume_after_newest`` (a resumed replay)."""
 
 
 def sharpness_from_image(rgb: np.ndarray) -> float:
@@ -126,19 +138,40 @@ class KeyframeStore:
     """Selects keyframes and persists each one as it arrives (thread-safe).
 
     Args:
-        directory: the dataset directory (created; an existing transforms.json there is resumed).
+        directory: the dataset directory (created; the keyframes already there, transforms.json plus journal,
+            are resumed).
         config: selection thresholds.
+        resume_after_newest: reject frames not newer than the newest stored keyframe (``ALREADY_STORED``): a
+            replay that reads a bag again from its start continues where it stopped.
+        index_period_s: once ``index_every_frame_below`` keyframes are stored, transforms.json is rewritten at
+            most this often (the journal holds every keyframe meanwhile).
+        index_every_frame_below: rewrite transforms.json after every keyframe while there are fewer.
+
+    Attributes:
+        rejected: frames not kept, per decision.
+        write_errors: failed writes (keyframes not stored, transforms.json rewrites deferred).
+        last_write_error: the message of the last failed write ('' when none failed).
     """
 
-    def __init__(self, directory: str | Path, config: KeyframeConfig = KeyframeConfig()) -> None:
+    def __init__(self, directory: str | Path, config: KeyframeConfig = KeyframeConfig(), *,
+                 resume_after_newest: bool = False, index_period_s: float = 2.0,
+                 index_every_frame_below: int = 200) -> None:
         self.directory = Path(directory)
         self.config = config
+        self.index_period_s = index_period_s
+        self.index_every_frame_below = index_every_frame_below
         self._lock = threading.Lock()
         self._frames: list[FrameEntry] = []
+        self._stamps: set[int] = set()
         self._intrinsics: CameraIntrinsics | None = None
         self._last_T: np.ndarray | None = None
+        self._index_dirty = False
+        self._index_written = 0.0
         self.rejected = {d: 0 for d in KeyframeDecision if d is not KeyframeDecision.ACCEPTED}
+        self.write_errors = 0
+        self.last_write_error = ''
         self._open()
+        self.resume_after_ns = max(self._stamps) if resume_after_newest and self._stamps else None
 
     def _open(self) -> None:
         for sub in ('images', 'instances', 'semantics', 'masks'):
@@ -146,11 +179,24 @@ class KeyframeStore:
         if (self.directory / TRANSFORMS_NAME).exists():
             try:
                 existing = read_transforms(self.directory)
+                self._frames = list(existing.frames)
+                self._intrinsics = existing.intrinsics
             except DatasetError:
-                return  # an empty or broken file: start over (it is rewritten on the next keyframe)
-            self._frames = list(existing.frames)
-            self._intrinsics = existing.intrinsics
+                pass  # an empty or broken index: the journal holds the frames
+        recovered = 0
+        trim_torn_tail(self.directory)
+        for entry in read_entries(self.directory):
+            if entry.index == len(self._frames) and (self.directory / entry.frame.file_path).is_file():
+                if self._intrinsics is None:
+                    self._intrinsics = entry.intrinsics or entry.frame.intrinsics
+                self._frames.append(entry.frame)
+                recovered += 1
+        if self._frames:
+            self._stamps = {f.stamp_ns for f in self._frames if f.stamp_ns is not None}
             self._last_T = optical_from_opengl(self._frames[-1].T_world_camera)
+        if recovered:  # frames the index missed (a kill between two index writes): index them now
+            self._index_dirty = True
+            self._write_index(force=True)
 
     def __len__(self) -> int:
         with self._lock:
@@ -185,6 +231,10 @@ class KeyframeStore:
             return decision
 
     def _decide(self, keyframe: Keyframe) -> KeyframeDecision:
+        if self.resume_after_ns is not None and keyframe.stamp_ns <= self.resume_after_ns:
+            return KeyframeDecision.ALREADY_STORED
+        if int(keyframe.stamp_ns) in self._stamps:
+            return KeyframeDecision.DUPLICATE_STAMP
         if len(self._frames) >= self.config.max_keyframes:
             return KeyframeDecision.FULL
         if self._last_T is not None:
@@ -196,23 +246,67 @@ class KeyframeStore:
         return KeyframeDecision.ACCEPTED
 
     def _write(self, keyframe: Keyframe) -> None:
-        name = f'{len(self._frames):06d}.png'  # frames are only ever appended (reset starts a new folder)
+        """Store one keyframe whole (images, then a journal line) or not at all (files removed, DatasetError)."""
+        index = len(self._frames)  # frames are only ever appended (reset starts a new folder)
+        name = f'{index:06d}.png'
         instance = np.asarray(keyframe.instance, dtype=np.uint16)
-        write_rgb_png(self.directory / 'images' / name, keyframe.rgb)
-        write_uint16_png(self.directory / 'instances' / name, instance)
-        write_mask_png(self.directory / 'semantics' / name, instance > 0)
-        mask_path = None
-        if keyframe.valid is not None and not bool(np.all(keyframe.valid)):
-            write_mask_png(self.directory / 'masks' / name, keyframe.valid)
-            mask_path = f'masks/{name}'
-        if self._intrinsics is None:
-            self._intrinsics = keyframe.intrinsics
-        own = None if keyframe.intrinsics == self._intrinsics else keyframe.intrinsics
-        self._frames.append(FrameEntry(f'images/{name}', opengl_from_optical(keyframe.T_world_optical),
-                                       f'instances/{name}', f'semantics/{name}', own, int(keyframe.stamp_ns),
-                                       mask_path))
+        paths = [self.directory / sub / name for sub in ('images', 'instances', 'semantics', 'masks')]
+        partial = keyframe.valid is not None and not bool(np.all(keyframe.valid))
+        intrinsics = self._intrinsics or keyframe.intrinsics
+        own = None if keyframe.intrinsics == intrinsics else keyframe.intrinsics
+        entry = FrameEntry(f'images/{name}', opengl_from_optical(keyframe.T_world_optical), f'instances/{name}',
+                           f'semantics/{name}', own, int(keyframe.stamp_ns), f'masks/{name}' if partial else None)
+        try:
+            write_rgb_png(paths[0], keyframe.rgb)
+            write_uint16_png(paths[1], instance)
+            write_mask_png(paths[2], instance > 0)
+            if partial:
+                write_mask_png(paths[3], keyframe.valid)
+            append_entry(self.directory, JournalEntry(index, entry, intrinsics if index == 0 else None))
+        except (OSError, DatasetError) as err:
+            for path in paths:
+                path.unlink(missing_ok=True)
+            self.write_errors += 1
+            reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+            if isinstance(err.__cause__, OSError) and err.__cause__.strerror:
+                reason = err.__cause__.strerror
+            try:
+                reason += f'; {shutil.disk_usage(self.directory).free // 1024} KiB free on its disk'
+            except OSError:
+                pass
+            self.last_write_error = (f'{self.directory}: keyframe {index} not stored ({reason}); the {index} '
+                                     'keyframe(s) stored before are intact')
+            raise DatasetError(self.last_write_error) from err
+        self._intrinsics = intrinsics
+        self._frames.append(entry)
+        self._stamps.add(int(keyframe.stamp_ns))
         self._last_T = np.asarray(keyframe.T_world_optical, dtype=np.float64)
-        write_transforms(self.directory, self._transforms(self._frames))
+        self._index_dirty = True
+        self._write_index()
+
+    def _write_index(self, *, force: bool = False) -> None:
+        """Rewrite transforms.json when due (every keyframe while few, then every ``index_period_s``) or forced.
+
+        A failure is counted (``write_errors``) and retried later: the journal already holds every frame.
+        """
+        now = time.monotonic()
+        due = len(self._frames) < self.index_every_frame_below or now - self._index_written >= self.index_period_s
+        if not self._index_dirty or not self._frames or not (due or force):
+            return
+        try:
+            write_transforms(self.directory, self._transforms(self._frames))
+        except OSError as err:
+            self.write_errors += 1
+            self.last_write_error = (f'{self.directory}: cannot rewrite {TRANSFORMS_NAME} ({err.strerror or err}); '
+                                     f'the keyframes are safe in the journal and it is retried')
+            return
+        self._index_dirty = False
+        self._index_written = now
+
+    def flush(self) -> None:
+        """Write transforms.json now if keyframes arrived since it was last written."""
+        with self._lock:
+            self._write_index(force=True)
 
     def _transforms(self, frames: list[FrameEntry]) -> TransformsFile:
         return TransformsFile(self._intrinsics, frames, extra={'generator': 'fruitnerfpp_ros keyframes'})
@@ -230,6 +324,7 @@ class KeyframeStore:
         dataset_dir = Path(dataset_dir)
         dataset_dir.mkdir(parents=True, exist_ok=True)
         with self._lock:
+            self._write_index(force=True)
             if not self._frames:
                 raise DatasetError(f'{self.directory}: no keyframes collected yet')
             prefix = Path(os.path.relpath(self.directory, dataset_dir))
@@ -251,11 +346,14 @@ class KeyframeStore:
         with self._lock:
             moved = None
             if self._frames:
+                self._write_index(force=True)
                 moved = self.directory.with_name(f'{self.directory.name}_reset_{time.time_ns()}')
                 shutil.move(str(self.directory), str(moved))
             self._frames = []
+            self._stamps = set()
             self._intrinsics = None
             self._last_T = None
+            self.resume_after_ns = None
             self.rejected = {d: 0 for d in self.rejected}
             self._open()
             return moved

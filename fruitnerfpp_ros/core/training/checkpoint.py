@@ -15,12 +15,22 @@ __all__ = ['save_checkpoint', 'load_checkpoint']
 
 
 def save_checkpoint(state: dict[str, Any], path: str | Path) -> Path:
-    """Write ``state`` with torch.save to ``path`` atomically (a crash leaves the previous file intact)."""
+    """Write ``state`` with torch.save to ``path`` atomically (a crash leaves the previous file intact).
+
+    Raises:
+        CheckpointError: the file cannot be written (e.g. the disk is full); the previous checkpoint is kept and
+            no temporary file is left.
+    """
     path = Path(path)
-    with atomic_path(path) as tmp, open(tmp, 'wb') as f:
-        torch.save(state, f)
-        f.flush()
-        os.fsync(f.fileno())
+    try:
+        with atomic_path(path) as tmp, open(tmp, 'wb') as f:
+            torch.save(state, f)
+            f.flush()
+            os.fsync(f.fileno())
+    except (OSError, RuntimeError) as err:  # torch.save reports a failed write as RuntimeError
+        kept = 'the previous checkpoint is kept' if path.is_file() else 'no earlier checkpoint exists'
+        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err).splitlines()[0]
+        raise CheckpointError(f'{path}: cannot write checkpoint ({reason}); {kept}') from err
     return path
 
 
