@@ -134,7 +134,8 @@ def render_markdown(suite: SuiteResult) -> str:
         lines += [f'`{suite.command}`', '']
     lines += ['## Counts against ground truth', '',
               'Hungarian matching within one ground-truth diameter; recall over the fruits a training view sees. '
-              'Peer: tracking-by-detection of the same instance masks (`fruitnerfpp track`). '
+              'Peer: tracking-by-detection of the same instance masks over every frame (`fruitnerfpp track`), '
+              'scored the same way. '
               'Held-out figures: after the last training stage.', '',
               accuracy_table(suite, pictures=True), '', *summary_lines(suite), '',
               '## Time and memory', '', cost_table(suite), '', '## Scenes', '', scenes_table(suite),

@@ -14,7 +14,7 @@ from concurrent.futures import ProcessPoolExecutor, ThreadPoolExecutor, as_compl
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import TYPE_CHECKING, Callable, Sequence
 
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.benchmark.report import git_commit, render_markdown
@@ -22,6 +22,11 @@ from fruitnerfpp_ros.core.benchmark.result import SceneResult, SuiteResult
 from fruitnerfpp_ros.core.benchmark.scene_run import BagRunner, SceneJob, run_scene
 from fruitnerfpp_ros.core.benchmark.suites import SuiteScene
 from fruitnerfpp_ros.errors import ConfigError
+
+if TYPE_CHECKING:  # torch stays unimported until a scene runs
+    from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    from fruitnerfpp_ros.core.export.config import ExportConfig
+    from fruitnerfpp_ros.core.training import TrainConfig
 
 __all__ = ['SuiteOptions', 'run_suite', 'ACCURACY_JSON', 'ACCURACY_MD', 'MASK_SOURCES']
 
@@ -36,11 +41,11 @@ class SuiteOptions:
 
     preset: str
     """Training preset name (recorded, and the bag replay's ``preset`` parameter)."""
-    train_config: Any
+    train_config: TrainConfig
     """The resolved TrainConfig (the preset plus the ``--config`` file's train section)."""
-    export_config: Any
+    export_config: ExportConfig
     """The ExportConfig."""
-    cluster_config: Any
+    cluster_config: ClusterConfig
     """The ClusterConfig."""
     masks: str = 'gt'
     """``gt``: the datasets' instance masks; ``fallback``: the built-in segmenter's (bag replay: ``mask_source``)."""

@@ -20,13 +20,20 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import TYPE_CHECKING, Any, Callable, Iterator
 
 import numpy as np
 
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.benchmark.result import CounterScore, SceneResult
 from fruitnerfpp_ros.core.benchmark.suites import SuiteScene
+
+if TYPE_CHECKING:  # torch stays unimported until a scene runs
+    from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    from fruitnerfpp_ros.core.export.config import ExportConfig
+    from fruitnerfpp_ros.core.pipeline import PipelineResult
+    from fruitnerfpp_ros.core.synthetic import SynthConfig
+    from fruitnerfpp_ros.core.training import TrainConfig
 
 __all__ = ['BagReplayRequest', 'BagReplayOutcome', 'BagRunner', 'SceneJob', 'run_scene', 'training_views',
            'SCENE_LOG', 'SCENE_JSON', 'PICTURE']
@@ -52,7 +59,7 @@ class BagReplayOutcome:
 
     keyframes_dir: Path
     """The transforms.json dataset of the collected keyframes."""
-    pipeline: Any
+    pipeline: PipelineResult
     """The replay's :class:`~fruitnerfpp_ros.core.pipeline.PipelineResult`."""
     keyframes_s: float
     """Wall seconds from the replay's start to its first training event (keyframe collection)."""
@@ -76,11 +83,11 @@ class SceneJob:
     """Torch device for rendering and training."""
     preset: str
     """Training preset name (the bag replay's ``preset`` parameter)."""
-    train_config: Any
+    train_config: TrainConfig
     """The resolved TrainConfig (preset plus ``--config``'s train section)."""
-    export_config: Any
+    export_config: ExportConfig
     """The ExportConfig."""
-    cluster_config: Any
+    cluster_config: ClusterConfig
     """The ClusterConfig."""
     config_file: str = ''
     """The ``--config`` pipeline file, for the bag replay's ``config_file`` parameter ('' = none)."""
@@ -154,7 +161,7 @@ def _eval_every(run_dir: Path, job: SceneJob) -> int:
     return load_config(TrainConfig, path).data.eval_every if path.is_file() else job.train_config.data.eval_every
 
 
-def _bag_parameters(job: SceneJob, config: Any) -> dict[str, Any]:
+def _bag_parameters(job: SceneJob, config: SynthConfig) -> dict[str, Any]:
     """The replay parameters a robot user would write for this recording."""
     from fruitnerfpp_ros.core.synthetic import image_topic
 
@@ -165,7 +172,8 @@ def _bag_parameters(job: SceneJob, config: Any) -> dict[str, Any]:
     return {**parameters, **job.scene.bag.params}
 
 
-def _count_ours(job: SceneJob, scene_dir: Path, data_dir: Path, record: _Record, config: Any) -> tuple[Any, Path]:
+def _count_ours(job: SceneJob, scene_dir: Path, data_dir: Path, record: _Record,
+                config: SynthConfig) -> tuple[PipelineResult, Path]:
     """Our count (the pipeline, or the bag replay); returns (PipelineResult, the dataset it trained on)."""
     run_dir = scene_dir / 'run'
     if job.scene.via_bag:
@@ -187,7 +195,7 @@ def _count_ours(job: SceneJob, scene_dir: Path, data_dir: Path, record: _Record,
     return result, data_dir
 
 
-def _pipeline_figures(result: Any, record: _Record) -> None:
+def _pipeline_figures(result: PipelineResult, record: _Record) -> None:
     """Held-out figures, scene box, voxel, measured diameter and step times of a PipelineResult."""
     summary = result.train_summary
     stages = tuple(getattr(summary, 'stages', ()) or ())

@@ -5,7 +5,7 @@ set of :class:`~fruitnerfpp_ros.core.synthetic.SynthConfig` fields (checked only
 scene fails alone and is reported), whether it goes through a rosbag2 and the bag replay like a robot recording,
 and a note on the axes of variation it covers.
 
-- ``quick``: 4 scenes, about 10 minutes on a 2-core CPU with the ``cpu`` preset and ``--jobs 2``.
+- ``quick``: 4 scenes, sized for about 10 minutes on a 2-core CPU with the ``cpu`` preset and ``--jobs 2``.
 - ``cpu``: 13 scenes over every axis the generator varies (fruit type, count, trajectory, camera and lens, look,
   odometry noise, bag transport), each within about 5 minutes of ``cpu``-preset training on one core; seeds
   differ from the ``quick`` suite's (scenes nothing was tuned on).
@@ -18,9 +18,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from types import MappingProxyType
-from typing import Any, Literal, Mapping
+from typing import TYPE_CHECKING, Any, Literal, Mapping
 
 from fruitnerfpp_ros.errors import ConfigError
+
+if TYPE_CHECKING:
+    from fruitnerfpp_ros.core.synthetic import SynthConfig
 
 __all__ = ['BagOptions', 'SuiteScene', 'Suite', 'SUITES', 'SUITE_NAMES', 'suite_scenes']
 
@@ -72,7 +75,7 @@ class SuiteScene:
             raise ConfigError(f'scene name must be letters, digits, _ and -, got {self.name!r}')
         object.__setattr__(self, 'synth', dict(self.synth))  # a copy (picklable, unlike a mappingproxy)
 
-    def synth_config(self, device: str = 'auto') -> Any:
+    def synth_config(self, device: str = 'auto') -> SynthConfig:
         """The scene's :class:`~fruitnerfpp_ros.core.synthetic.SynthConfig`, rendered on ``device``.
 
         Raises:
@@ -184,7 +187,7 @@ _SMOKE = (
 
 #: Every suite by name.
 SUITES: Mapping[str, Suite] = MappingProxyType({
-    'quick': Suite('quick', 'cpu', _QUICK, 'about 10 min on a 2-core CPU with --jobs 2'),
+    'quick': Suite('quick', 'cpu', _QUICK, 'sized for about 10 min on a 2-core CPU with --jobs 2'),
     'cpu': Suite('cpu', 'cpu', _CPU, 'every axis of the generator, each scene within ~5 min of cpu-preset training '
                  'on one core'),
     'gpu': Suite('gpu', 'default', _GPU, "the paper's Table II scenes on a GPU (default preset)"),
