@@ -35,6 +35,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--no-train', action='store_true', help='only collect keyframes')
     parser.add_argument('--skip-training', action='store_true',
                         help='reuse the model already trained in RUN_DIR: re-export and recount only')
+    parser.add_argument('--resume', action='store_true',
+                        help='continue a replay into RUN_DIR that was killed or stopped: keep its keyframes (an '
+                             'interrupted collection continues after the newest), train from the last checkpoint')
     parser.set_defaults(func=run)
 
 
@@ -54,8 +57,10 @@ def run(args: argparse.Namespace) -> int:
     from fruitnerfpp_ros.nodes.bag_replay import replay_bag
     settings = settings_from_args(args)
     result = replay_bag(args.bag, args.out, settings, train=not args.no_train, show_progress=True,
-                        skip_training=args.skip_training)
+                        skip_training=args.skip_training, resume=args.resume)
     print(f'keyframes: {result.n_keyframes} in {result.keyframes_dir}')
+    for recovery in result.recoveries:
+        print(f'recovered: {recovery.messages} message(s) of the damaged {recovery.path}')
     if result.count is None:
         return 0
     print(f'fruit count: {result.count.count}')

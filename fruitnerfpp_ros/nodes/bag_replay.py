@@ -15,6 +15,8 @@ enter through :mod:`fruitnerfpp_ros.cli.replay`; this module never imports the c
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import shutil
 import sys
 import threading
@@ -22,6 +24,8 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
+from fruitnerfpp_ros.core.bags import BagSource, BagTopic, FileRecovery, open_bag
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
 from fruitnerfpp_ros.core.progress import ProgressCallback
 from fruitnerfpp_ros.errors import BagError, ConfigError
@@ -46,6 +50,8 @@ ROLE_TYPES = {
 }
 RESULTS_NAME = 'results.mcap'
 REPORT_NAME = 'fruit_report.json'
+#: Written when the collection from the bag is complete: a resumed replay does not read the bag again.
+COLLECTION_NAME = 'collection.json'
 
 
 class ReplayResult(NamedTuple):
@@ -60,6 +66,7 @@ class ReplayResult(NamedTuple):
         results_mcap: results.mcap (None when training was skipped).
         pipeline: the core's PipelineResult (None when training was skipped).
         status: the collection counters (messages per role, errors, sync).
+        recoveries: the damaged storage files read up to their last whole message (empty for a sound bag).
     """
 
     run_dir: Path
@@ -70,85 +77,114 @@ class ReplayResult(NamedTuple):
     results_mcap: Path | None
     pipeline: Any
     status: AssemblerStatus
+    recoveries: tuple[FileRecovery, ...] = ()
 
 
 def _print_log(level: LogLevel, message: str) -> None:
     print(f'[{level}] {message}', file=sys.stdout if level is LogLevel.INFO else sys.stderr, flush=True)
 
 
-def _topics_table(reader: Any) -> str:
-    return ', '.join(f'{c.topic} [{c.msgtype}]' for c in sorted(reader.connections, key=lambda c: c.topic)) or 'none'
+def _topics_table(topics: list[BagTopic]) -> str:
+    return ', '.join(f'{t.topic} [{t.msgtype}]' for t in topics) or 'none'
+
+
+def _roles_in_bag(source: BagSource, assembler: FrameAssembler, settings: CounterSettings,
+                  log: LogFunction) -> dict[str, str]:
+    """Topic -> role for every role the settings use; checks that the bag has the required ones."""
+    bag_path = source.path
+    by_topic = {t.topic: t for t in source.topics}
+    roles: dict[str, str] = {}
+    used = list(assembler.required_roles())
+    if settings.pose_source in ('tf', 'odometry'):
+        used += [r for r in ('tf', 'tf_static') if r not in used]
+    for role in used:
+        topic = assembler.topic_of(role)
+        if topic not in by_topic:
+            if role in assembler.required_roles():
+                raise BagError(f'{bag_path}: no topic {topic} ({role}) in the bag; topics in the bag: '
+                               f'{_topics_table(source.topics)}. Set the *_topic parameters (--params) to match.')
+            continue
+        msgtype = by_topic[topic].msgtype
+        if msgtype not in ROLE_TYPES[role]:
+            raise BagError(f'{bag_path}: topic {topic} has type {msgtype}, expected '
+                           f'{" or ".join(ROLE_TYPES[role])} for {role}')
+        roles[topic] = role
+    unused = sorted(set(by_topic) - set(roles))
+    if unused:
+        log(LogLevel.INFO, f'{bag_path}: ignoring topics {", ".join(unused)}')
+    return roles
+
+
+def read_bag_into(assembler: FrameAssembler, bag_path: str | Path, settings: CounterSettings, *,
+                  log: LogFunction = _print_log, stop_event: threading.Event | None = None) -> list[FileRecovery]:
+    """Feed every relevant message of the bag to ``assembler`` (then flush it).
+
+    A damaged bag (an MCAP without footer, a sqlite3 file with missing pages, a missing or stale metadata.yaml) is
+    read up to its last whole message (:func:`~fruitnerfpp_ros.core.bags.open_bag`), with a warning saying how
+    much was recovered.
+
+    Returns:
+        one record per damaged storage file that was recovered (empty for a sound bag).
+
+    Raises:
+        BagError: the bag is missing, holds nothing readable, or lacks a required topic (the message lists the
+            topics it has).
+    """
+    from rosbags.typesys import Stores, get_typestore
+
+    source = open_bag(bag_path)
+    try:
+        for note in source.notes:
+            log(LogLevel.WARN, note)
+        for recovery in source.recoveries:
+            log(LogLevel.WARN, recovery.describe())
+        source.on_recovery = lambda recovery: log(LogLevel.WARN, recovery.describe())
+        roles = _roles_in_bag(source, assembler, settings, log)
+        typestore = get_typestore(Stores.ROS2_JAZZY)
+        store = assembler.store
+        try:
+            for message in source.messages(set(roles)):
+                if stop_event is not None and stop_event.is_set():
+                    break
+                role = roles[message.topic]
+                try:
+                    msg = typestore.deserialize_cdr(message.data, message.msgtype)
+                except Exception as err:  # noqa: BLE001 - a damaged message is skipped, the next may be fine
+                    assembler.received[role] += 1
+                    assembler.errors[role] += 1
+                    log(LogLevel.WARN, f'{message.topic}: undecodable message skipped ({type(err).__name__}: {err})')
+                    continue
+                assembler.on_message(role, msg)
+        except BagError as err:
+            raise BagError(f'{err}; {len(store)} keyframe(s) collected before the damage stay in '
+                           f'{store.directory}') from err
+        assembler.flush()
+        store.flush()
+    finally:
+        source.close()
+    return list(source.recoveries)
 
 
 def collect_keyframes(bag_path: str | Path, keyframes_dir: str | Path, settings: CounterSettings, *,
-                      log: LogFunction = _print_log, stop_event: threading.Event | None = None) -> FrameAssembler:
+                      log: LogFunction = _print_log, stop_event: threading.Event | None = None,
+                      resume: bool = False) -> FrameAssembler:
     """Read every relevant message of the bag through a :class:`FrameAssembler` into ``keyframes_dir``.
+
+    Args:
+        resume: keep the keyframes already in ``keyframes_dir`` and add only those newer than its newest (a
+            replay that was killed while collecting continues where it stopped, with the same keyframes).
 
     Returns:
         the assembler (its ``store`` holds the keyframes, ``status()`` the counters).
 
     Raises:
-        BagError: the bag is missing, unreadable, corrupt or truncated, or lacks a required topic (the message
-            lists the topics it has).
+        BagError: see :func:`read_bag_into`.
     """
-    from rosbags.highlevel import AnyReader
-
-    bag_path = Path(bag_path)
-    if not bag_path.exists():
+    if not Path(bag_path).exists():
         raise BagError(f'{bag_path}: no such bag (a rosbag2 directory or an .mcap / .db3 file)')
-    store = KeyframeStore(keyframes_dir, keyframe_config(settings))
+    store = KeyframeStore(keyframes_dir, keyframe_config(settings), resume_after_newest=resume)
     assembler = FrameAssembler(settings, store, log)
-    try:
-        reader = AnyReader([bag_path])
-        reader.open()
-    except Exception as err:  # noqa: BLE001 - rosbags raises many types for damaged files
-        raise BagError(f'{bag_path}: cannot open as a rosbag2 (sqlite3 or MCAP): {type(err).__name__}: {err}') \
-            from err
-    try:
-        by_topic = {c.topic: c for c in reader.connections}
-        roles: dict[str, str] = {}
-        used = list(assembler.required_roles())
-        if settings.pose_source in ('tf', 'odometry'):
-            used += [r for r in ('tf', 'tf_static') if r not in used]
-        for role in used:
-            topic = assembler.topic_of(role)
-            if topic not in by_topic:
-                if role in assembler.required_roles():
-                    raise BagError(f'{bag_path}: no topic {topic} ({role}) in the bag; topics in the bag: '
-                                   f'{_topics_table(reader)}. Set the *_topic parameters (--params) to match.')
-                continue
-            msgtype = by_topic[topic].msgtype
-            if msgtype not in ROLE_TYPES[role]:
-                raise BagError(f'{bag_path}: topic {topic} has type {msgtype}, expected '
-                               f'{" or ".join(ROLE_TYPES[role])} for {role}')
-            roles[topic] = role
-        unused = sorted(set(by_topic) - set(roles))
-        if unused:
-            log(LogLevel.INFO, f'{bag_path}: ignoring topics {", ".join(unused)}')
-        connections = [c for c in reader.connections if c.topic in roles]
-        try:
-            for connection, _, raw in reader.messages(connections=connections):
-                if stop_event is not None and stop_event.is_set():
-                    break
-                role = roles[connection.topic]
-                try:
-                    msg = reader.deserialize(raw, connection.msgtype)
-                except Exception as err:  # noqa: BLE001
-                    assembler.errors[role] += 1
-                    log(LogLevel.WARN, f'{connection.topic}: undecodable message skipped ({type(err).__name__}: {err})')
-                    continue
-                assembler.on_message(role, msg)
-        except BagError:
-            raise
-        except Exception as err:  # noqa: BLE001
-            raise BagError(f'{bag_path}: the bag is corrupt or truncated ({type(err).__name__}: {err}); '
-                           f'{len(store)} keyframe(s) collected before the damage stay in {store.directory}') from err
-        assembler.flush()
-    finally:
-        try:
-            reader.close()
-        except Exception:  # noqa: BLE001
-            pass
+    read_bag_into(assembler, bag_path, settings, log=log, stop_event=stop_event)
     return assembler
 
 
@@ -189,10 +225,61 @@ def write_results_mcap(path: str | Path, messages: list[tuple[str, str, Any]], s
     return path
 
 
+def _finished_collection(run_dir: Path, bag_path: Path) -> dict[str, Any] | None:
+    """The collection record of a replay that finished collecting from ``bag_path`` (None: not finished).
+
+    Raises:
+        ConfigError: the run directory was collected from another bag.
+    """
+    path = run_dir / COLLECTION_NAME
+    if not path.is_file():
+        return None
+    try:
+        record = json.loads(path.read_text())
+        bag = record['bag']
+    except (ValueError, KeyError, TypeError):
+        return None
+    if Path(bag).resolve() != bag_path.resolve():
+        raise ConfigError(f'{run_dir} holds the keyframes of {bag}, not {bag_path}; choose a new --out')
+    return record
+
+
+_Collected = tuple[KeyframeStore, AssemblerStatus, tuple[FileRecovery, ...]]
+
+
+def _collect(bag_path: Path, run_dir: Path, settings: CounterSettings, log: LogFunction,
+             stop_event: threading.Event | None, resume: bool) -> _Collected:
+    """Collect the keyframes (or, resuming, keep those of a finished or interrupted collection)."""
+    keyframes_dir = run_dir / 'keyframes'
+    finished = _finished_collection(run_dir, bag_path) if resume else None
+    if finished is not None:
+        store = KeyframeStore(keyframes_dir, keyframe_config(settings))
+        log(LogLevel.INFO, f'{keyframes_dir}: the collection from {bag_path} is complete ({len(store)} '
+            'keyframes); the bag is not read again')
+        return store, AssemblerStatus(**{**finished['status'], 'keyframes': len(store)}), tuple(
+            FileRecovery(*r) for r in finished.get('recoveries', []))
+    if keyframes_dir.exists() and not resume:  # a replay collects afresh; earlier keyframes are kept aside
+        previous = keyframes_dir.with_name(f'keyframes_previous_{time.time_ns()}')
+        keyframes_dir.rename(previous)
+        log(LogLevel.INFO, f'{keyframes_dir} existed: moved to {previous}')
+    (run_dir / COLLECTION_NAME).unlink(missing_ok=True)
+    store = KeyframeStore(keyframes_dir, keyframe_config(settings), resume_after_newest=resume)
+    if resume and len(store):
+        log(LogLevel.INFO, f'{keyframes_dir}: resuming the collection after its {len(store)} keyframe(s)')
+    assembler = FrameAssembler(settings, store, log)
+    recoveries = tuple(read_bag_into(assembler, bag_path, settings, log=log, stop_event=stop_event))
+    status = assembler.status()
+    if stop_event is None or not stop_event.is_set():
+        atomic_write_text(run_dir / COLLECTION_NAME, json.dumps(
+            {'bag': str(bag_path), 'keyframes': len(store), 'status': dataclasses.asdict(status),
+             'recoveries': [list(r) for r in recoveries]}, indent=1))
+    return store, status, recoveries
+
+
 def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSettings = CounterSettings(), *,
                train: bool = True, progress: ProgressCallback | None = None, log: LogFunction = _print_log,
                stop_event: threading.Event | None = None, show_progress: bool = False,
-               skip_training: bool = False) -> ReplayResult:
+               skip_training: bool = False, resume: bool = False) -> ReplayResult:
     """Collect keyframes from a bag, then train, count and write the outputs into ``run_dir``.
 
     Args:
@@ -201,32 +288,33 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
         settings: topics, pose source, keyframe selection, preset, device (see ``config/fruit_counter.yaml``).
         train: False stops after collecting keyframes.
         skip_training: reuse the model already trained in ``run_dir`` (re-export and recount only).
+        resume: continue a replay into ``run_dir`` that was killed or stopped: the keyframes collected are kept
+            (a finished collection is not read again, an interrupted one continues after its newest keyframe) and
+            training continues from its last checkpoint; the count equals an uninterrupted replay's.
 
     Raises:
         BagError: unreadable bag, missing topics, or no keyframe collected.
-        ConfigError: ``run_dir`` already holds a training run (and ``skip_training`` is False).
+        ConfigError: ``run_dir`` already holds a training run (and neither ``resume`` nor ``skip_training``), or
+            resuming a run directory collected from another bag.
         FruitNerfError: training / export / clustering failures (from the core).
     """
-    run_dir = Path(run_dir)
-    if train and not skip_training and (run_dir / 'checkpoints').exists():
-        raise ConfigError(f'{run_dir} already holds a training run; choose a new --out, or pass --skip-training '
-                          'to re-export and recount it')
+    run_dir, bag_path = Path(run_dir), Path(bag_path)
+    if train and not skip_training and not resume and (run_dir / 'checkpoints').exists():
+        raise ConfigError(f'{run_dir} already holds a training run; continue it with --resume, choose a new --out, '
+                          'or pass --skip-training to re-export and recount it')
+    if not bag_path.exists():
+        raise BagError(f'{bag_path}: no such bag (a rosbag2 directory or an .mcap / .db3 file)')
     run_dir.mkdir(parents=True, exist_ok=True)
     keyframes_dir = run_dir / 'keyframes'
-    if keyframes_dir.exists():  # a replay collects afresh; earlier keyframes are kept aside, not mixed in
-        previous = keyframes_dir.with_name(f'keyframes_previous_{time.time_ns()}')
-        keyframes_dir.rename(previous)
-        log(LogLevel.INFO, f'{keyframes_dir} existed: moved to {previous}')
-    assembler = collect_keyframes(bag_path, keyframes_dir, settings, log=log, stop_event=stop_event)
-    status = assembler.status()
-    n_keyframes = len(assembler.store)
+    store, status, recoveries = _collect(bag_path, run_dir, settings, log, stop_event, resume)
+    n_keyframes = len(store)
     log(LogLevel.INFO, f'{bag_path}: {n_keyframes} keyframe(s) from {status.received.get("image", 0)} image(s) '
         f'in {keyframes_dir}')
     if n_keyframes == 0:
         raise BagError(f'{bag_path}: no keyframe could be made; received {dict(status.received)}, errors '
                        f'{dict(status.errors)}, unmatched stamps {dict(status.sync_unmatched)}')
     if not train:
-        return ReplayResult(run_dir, keyframes_dir, n_keyframes, None, None, None, None, status)
+        return ReplayResult(run_dir, keyframes_dir, n_keyframes, None, None, None, None, status, recoveries)
     if n_keyframes < settings.min_keyframes:
         raise BagError(f'{bag_path}: only {n_keyframes} keyframe(s), fewer than min_keyframes='
                        f'{settings.min_keyframes}')
@@ -241,10 +329,12 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
         result = run_pipeline(keyframes_dir, run_dir, train_config=configs.train,
                               export_config=configs.export, cluster_config=configs.cluster,
                               device=settings.device, progress=progress, stop_event=stop_event,
-                              show_progress=show_progress, skip_training=skip_training, executor=pool)
+                              show_progress=show_progress, skip_training=skip_training, executor=pool,
+                              resume=resume and not skip_training)
     if result.stopped:
-        raise BagError(f'{bag_path}: replay stopped before the count; the keyframes stay in {keyframes_dir}')
-    stamp_ns = max(f.stamp_ns or 0 for f in assembler.store.frames)
+        raise BagError(f'{bag_path}: replay stopped before the count; the keyframes stay in {keyframes_dir}; '
+                       'continue with --resume')
+    stamp_ns = max(f.stamp_ns or 0 for f in store.frames)
     run_id = f'{run_dir.resolve().name}'
     extra = {'keyframes': n_keyframes, 'source': str(bag_path), 'preset': configs.preset}
     messages = result_messages(result.count, result.cloud, settings.world_frame, stamp_ns, run_id, extra)
@@ -256,4 +346,5 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
     topics = [(f'/{RESULTS_NODE_NAME}/{t.name}', t.msg_type, messages[t.name]) for t in OUTPUT_TOPICS]
     topics.append((DIAGNOSTICS_TOPIC, 'diagnostic_msgs/msg/DiagnosticArray', diagnostics))
     results_mcap = write_results_mcap(run_dir / RESULTS_NAME, topics, stamp_ns)
-    return ReplayResult(run_dir, keyframes_dir, n_keyframes, result.count, report_path, results_mcap, result, status)
+    return ReplayResult(run_dir, keyframes_dir, n_keyframes, result.count, report_path, results_mcap, result, status,
+                        recoveries)

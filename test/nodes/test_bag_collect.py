@@ -85,22 +85,19 @@ def test_renamed_topic_via_params_file(tmp_path: Path) -> None:
     assert len(collect_keyframes(bag, tmp_path / 'kf2', settings, log=Logs()).store) == 3
 
 
-def test_missing_and_corrupt_and_truncated_bags(tmp_path: Path) -> None:
+def test_missing_and_unreadable_bags(tmp_path: Path) -> None:
+    """Nothing to recover is a one-line BagError (truncated bags: test_bag_recovery.py)."""
     with pytest.raises(BagError, match='no such bag'):
         collect_keyframes(tmp_path / 'nope', tmp_path / 'kf', SETTINGS, log=Logs())
     bag = bf.write_bag(tmp_path / 'bag', bf.messages(6))
     mcap_file = next(bag.glob('*.mcap'))
-    data = mcap_file.read_bytes()
-    mcap_file.write_bytes(data[:len(data) // 2])
-    with pytest.raises(BagError, match='corrupt or truncated|cannot open'):
-        collect_keyframes(bag, tmp_path / 'kf', SETTINGS, log=Logs())
     mcap_file.write_bytes(b'\x89MCAP0\r\n' + bytes(range(256)) * 4)
-    with pytest.raises(BagError, match='corrupt or truncated|cannot open'):
+    with pytest.raises(BagError, match='cannot open as a rosbag2 .*nothing could be recovered'):
         collect_keyframes(bag, tmp_path / 'kf3', SETTINGS, log=Logs())
     sqlite_bag = bf.write_bag(tmp_path / 'bag_sqlite', bf.messages(6), 'sqlite3')
     db = next(sqlite_bag.glob('*.db3'))
     db.write_bytes(db.read_bytes()[:1000])
-    with pytest.raises(BagError, match='corrupt or truncated|cannot open'):
+    with pytest.raises(BagError, match='nothing could be recovered.*no readable topics table'):
         collect_keyframes(sqlite_bag, tmp_path / 'kf4', SETTINGS, log=Logs())
 
 
@@ -109,7 +106,7 @@ def test_replay_into_an_existing_run_dir(tmp_path: Path) -> None:
     bag = bf.write_bag(tmp_path / 'bag', bf.messages(6))
     run = tmp_path / 'run'
     (run / 'checkpoints').mkdir(parents=True)
-    with pytest.raises(ConfigError, match='already holds a training run'):
+    with pytest.raises(ConfigError, match='already holds a training run; continue it with --resume'):
         replay_bag(bag, run, SETTINGS, log=Logs())
     for _ in range(2):  # collecting twice does not mix the keyframes of both replays
         assert replay_bag(bag, run, SETTINGS, log=Logs(), train=False).n_keyframes == 6
