@@ -7,7 +7,10 @@ frame waits (up to ``pending_timeout_s`` of stamp time) for camera_info and TF, 
 and offered to the :class:`KeyframeStore`, which writes it to disk when kept.
 
 Bad input never raises out of :meth:`on_message`: it is logged (throttled per kind) and counted in
-:attr:`FrameAssembler.errors`; frames already collected stay on disk.
+:attr:`FrameAssembler.errors`; frames already collected stay on disk. A keyframe the store cannot write (a full
+disk) is an error log and ``errors['write']``; the node keeps collecting. Stamps that jump back in time by more
+than ``pending_timeout_s`` (a bag played again, a clock reset) clear the sync queues, the waiting frames and the
+dynamic TF history (``time_jumps``), so collection continues on the new time line.
 """
 
 from __future__ import annotations
@@ -22,7 +25,7 @@ from fruitnerfpp_ros.core.data.keyframe_store import Keyframe, KeyframeDecision,
 from fruitnerfpp_ros.core.geometry import transform_from_quaternion
 from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer, TfFutureError, TfLookupError
 from fruitnerfpp_ros.core.streams.time_sync import ApproximateTimeSynchronizer, SyncedSet
-from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
+from fruitnerfpp_ros.errors import ConversionError, DatasetError, FruitNerfError
 from fruitnerfpp_ros.nodes.conversions import (CameraModel, add_tf_message, camera_model_from_camera_info,
                                                image_from_msg, stamp_ns_from_header, transform_from_pose_msg,
                                                undistort_image, undistort_mask, valid_pixels)
@@ -70,6 +73,8 @@ class FrameAssembler:
         self.errors: Counter[str] = Counter()
         self.decisions: Counter[str] = Counter()
         self.dropped_pending = 0
+        self.time_jumps = 0
+        self._write_errors_logged = 0
 
     # ------------------------------------------------------------------ input
     def topic_of(self, role: str) -> str:
@@ -117,6 +122,8 @@ class FrameAssembler:
         stamp_ns = stamp_ns_from_header(msg.header)
         if role in ('pose', 'odometry'):
             transform_from_pose_msg(msg.pose, topic=self.topic_of(role))  # reject NaN poses before matching
+        if self._newest_stamp_ns - stamp_ns > self.settings.pending_timeout_s * 1e9:
+            self._time_jump(role, stamp_ns)
         self._newest_stamp_ns = max(self._newest_stamp_ns, stamp_ns)
         before = sum(self.sync.unmatched.values())
         self._pending.extend(self.sync.add(self._sync_index[role], stamp_ns, msg))
@@ -125,6 +132,18 @@ class FrameAssembler:
                             f'stamps do not match within sync_slop_s={self.settings.sync_slop_s} s; '
                             f'unmatched so far {dict(self.sync.unmatched)}')
         return self._drain()
+
+    def _time_jump(self, role: str, stamp_ns: int) -> None:
+        """Stamps went back in time: start a new time line (queues, waiting frames and TF history cleared)."""
+        back_s = (self._newest_stamp_ns - stamp_ns) / 1e9
+        self.time_jumps += 1
+        self._throttled(LogLevel.WARN, 'time_jump', f'{self.topic_of(role)}: stamp jumped back {back_s:.1f} s (a bag '
+                        'played again or a clock reset): sync queues, waiting frames and /tf history cleared')
+        self.sync.reset()
+        self.dropped_pending += len(self._pending)
+        self._pending = []
+        self.tf.clear(static=False)
+        self._newest_stamp_ns = stamp_ns
 
     # ------------------------------------------------------------------ frames
     def _drain(self, *, final: bool = False) -> list[KeyframeDecision]:
@@ -141,6 +160,10 @@ class FrameAssembler:
                                     f'frame at {synced.stamp_ns} ns dropped: {err}')
                 else:
                     waiting.append(synced)
+            except DatasetError as err:  # the store could not write the keyframe (a full disk): nothing half-stored
+                self.errors['write'] += 1
+                self._write_errors_logged = self.store.write_errors
+                self._throttled(LogLevel.ERROR, 'write', f'frame at {synced.stamp_ns} ns dropped: {err}')
             except FruitNerfError as err:
                 self.errors['frame'] += 1
                 self._throttled(LogLevel.WARN, _kind(f'frame:{err}'), f'frame at {synced.stamp_ns} ns dropped: {err}')
@@ -179,6 +202,9 @@ class FrameAssembler:
         keyframe = Keyframe(synced.stamp_ns, undistorted, instances, T_world_optical, camera.intrinsics,
                             valid_pixels(camera))
         decision = self.store.offer(keyframe)
+        if self.store.write_errors > self._write_errors_logged and self.store.last_write_error:
+            self._write_errors_logged = self.store.write_errors  # a deferred transforms.json rewrite failed
+            self._throttled(LogLevel.ERROR, 'write', self.store.last_write_error)
         if decision is KeyframeDecision.ACCEPTED:
             n = len(self.store)
             if n == 1 or n % 10 == 0:
@@ -217,7 +243,8 @@ class FrameAssembler:
         """Counters for diagnostics and reports (a copy: later messages do not change it)."""
         return AssemblerStatus(len(self.store), dict(self.received), dict(self.errors), dict(self.decisions),
                                {k.value: v for k, v in self.store.rejected.items()}, self.sync.matched,
-                               dict(self.sync.unmatched), len(self._pending), self.dropped_pending)
+                               dict(self.sync.unmatched), len(self._pending), self.dropped_pending,
+                               self.store.write_errors, self.time_jumps)
 
 
 def _kind(message: str) -> str:

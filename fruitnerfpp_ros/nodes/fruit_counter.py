@@ -4,7 +4,10 @@ Threading (nvblox-style): subscription callbacks only append to bounded per-inpu
 counted); a tick timer drains them through the shared :class:`FrameAssembler` (keyframes written to disk as they
 arrive); training runs :func:`fruitnerfpp_ros.core.pipeline.run_pipeline` in a background thread with a stop event,
 so the executor keeps spinning, reporting and collecting (keyframes that arrive during training are kept for the
-next ``~/train``).
+next ``~/train``). Runs are managed by :class:`~fruitnerfpp_ros.nodes.training_runs.TrainingRuns`.
+
+Restarted on the same ``output_dir`` (after ``kill -9`` or a power loss) the node keeps every keyframe collected,
+publishes the last finished count again and resumes a training run that was interrupted from its last checkpoint.
 
 Interface (see docs/ros_interface.md): inputs ``image_topic`` / ``camera_info_topic`` / ``mask_topic`` (or a
 segmenter, ``mask_source``) / pose (``pose_topic``, ``odometry_topic`` or /tf + /tf_static); services ``~/train``,
@@ -14,7 +17,6 @@ segmenter, ``mask_source``) / pose (``pose_topic``, ``odometry_topic`` or /tf + 
 
 from __future__ import annotations
 
-import dataclasses
 import heapq
 import itertools
 import os
@@ -33,17 +35,15 @@ from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
-from fruitnerfpp_ros.core.data.keyframe_store import KeyframeSnapshot, KeyframeStore
-from fruitnerfpp_ros.core.progress import ProgressEvent
-from fruitnerfpp_ros.errors import FruitNerfError
+from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
 from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler
 from fruitnerfpp_ros.nodes.log import LogLevel, ThrottledLog
 from fruitnerfpp_ros.nodes.mask_source import mask_source_from_settings
-from fruitnerfpp_ros.nodes.params import declare_parameters, keyframe_config, pipeline_configs, settings_mapping
-from fruitnerfpp_ros.nodes.results import (DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, diagnostics_msg, result_messages,
-                                           write_report)
+from fruitnerfpp_ros.nodes.params import declare_parameters, keyframe_config, settings_mapping
+from fruitnerfpp_ros.nodes.results import DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, diagnostics_msg, write_report
 from fruitnerfpp_ros.nodes.node_main import spin_node
 from fruitnerfpp_ros.nodes.status import NodeState, NodeStatus, RunStatus
+from fruitnerfpp_ros.nodes.training_runs import TrainingRuns
 
 __all__ = ['FruitCounterNode', 'main', 'default_output_dir', 'LATCHED_QOS']
 
@@ -86,7 +86,8 @@ class FruitCounterNode(Node):
         self.dropped: dict[str, int] = {}
         self._received: dict[str, int] = {}
         self._last_rx: dict[str, float] = {}
-        self._started = time.monotonic()
+        self._started = self._rate_since = time.monotonic()
+        self._write_errors_reported = 0
         self._rate_window: dict[str, int] = {}
         sensor_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=s.queue_size,
                                 reliability=ReliabilityPolicy.BEST_EFFORT if s.input_reliability == 'best_effort'
@@ -135,14 +136,10 @@ class FruitCounterNode(Node):
         self.create_timer(0.02, self._tick, callback_group=MutuallyExclusiveCallbackGroup())
         self.create_timer(s.diagnostics_period_s, self._publish_diagnostics, callback_group=control)
 
-        # Training state (written by the training thread, read by diagnostics and services).
-        self._state_lock = threading.Lock()
-        self._run = RunStatus()
-        self._train_thread: threading.Thread | None = None
-        self._start_lock = threading.Lock()
-        self._stop_event = threading.Event()
-        self._train_index = 0
+        # Training runs (a background thread; resumed here when a kill interrupted one).
+        self.runs = TrainingRuns(self.run_dir, self.store, self._log, self._publish_results)
         self._auto_started = False
+        self._restore_runs()
         trigger = f'auto-train after {s.auto_train_after}' if s.auto_train_after else 'train on ~/train'
         masks = f'masks from {s.mask_topic}' if s.mask_source == 'topic' else \
             f'masks from the {s.mask_source} segmenter'
@@ -200,94 +197,38 @@ class FruitCounterNode(Node):
     # ------------------------------------------------------------------ training
     @property
     def training(self) -> bool:
-        return self._train_thread is not None and self._train_thread.is_alive()
+        """A training run's thread is alive (also while it stops)."""
+        return self.runs.running
 
     @property
     def run_status(self) -> RunStatus:
         """State of the training runs: state, phase, progress, last error, last count and report."""
-        with self._state_lock:
-            return self._run
-
-    def _update_run(self, **changes: Any) -> None:
-        """Replace fields of the run status (from the training thread and the services)."""
-        with self._state_lock:
-            self._run = dataclasses.replace(self._run, **changes)
+        return self.runs.status
 
     def start_training(self) -> tuple[bool, str]:
-        """Start a training run on the keyframes collected so far; returns (started, message).
-
-        The keyframes are frozen here (a transforms.json snapshot: one small file, written under the store's lock),
-        before answering, so the answer, the log and the run's report name the same keyframes however many arrive
-        while the training thread starts.
-        """
-        with self._start_lock:  # ~/train and auto-train (tick) may ask at once
-            if self.training:
-                run = self.run_status
-                return False, f'training already running ({run.phase or run.state})'
-            n = len(self.store)
-            if n < self.settings.min_keyframes:
-                return False, f'only {n} keyframe(s) collected, min_keyframes is {self.settings.min_keyframes}'
-            index = self._train_index + 1
-            try:
-                snapshot = self.store.snapshot(self.run_dir / 'datasets' / f'train_{index:03d}')
-            except (FruitNerfError, OSError) as err:
-                return False, f'cannot freeze the keyframes for training run {index}: {err}'
-            self._train_index = index
-            self._stop_event = threading.Event()
-            self._update_run(state=NodeState.TRAINING, phase=None, progress=0.0, last_error='')
-            self._train_thread = threading.Thread(target=self._train_worker, args=(index, snapshot, self._stop_event),
-                                                  name=f'fruit_counter_train_{index}', daemon=True)
-            self._train_thread.start()
-        return True, (f'training run {index} started on {snapshot.n_keyframes} keyframes '
-                      f'({self.run_dir / f"train_{index:03d}"})')
-
-    def _on_progress(self, event: ProgressEvent) -> None:
-        self._update_run(state=NodeState.during(event.phase.stage), phase=event.phase, progress=event.fraction)
-
-    def _train_worker(self, index: int, snapshot: KeyframeSnapshot, stop_event: threading.Event) -> None:
-        stamp_ns, n_keyframes = snapshot.latest_stamp_ns, snapshot.n_keyframes  # what this run trains on
-        try:
-            from fruitnerfpp_ros.core.clustering.workers import partition_pool
-            from fruitnerfpp_ros.core.pipeline import run_pipeline
-            from fruitnerfpp_ros.core.device import use_cpu_threads
-            configs = pipeline_configs(self.settings)
-            for warning in configs.warnings:
-                self.get_logger().warning(warning)
-            use_cpu_threads(configs.train.cpu_threads, self.settings.device)  # the node owns its process
-            with partition_pool(configs.cluster.n_jobs) as pool:  # workers live for this run only
-                result = run_pipeline(snapshot.dataset_dir, self.run_dir / f'train_{index:03d}',
-                                      train_config=configs.train, export_config=configs.export,
-                                      cluster_config=configs.cluster, device=self.settings.device,
-                                      progress=self._on_progress, stop_event=stop_event, executor=pool)
-            if stop_event.is_set():
-                self._update_run(state=NodeState.COLLECTING, phase=None)
-                self.get_logger().info(f'training run {index} stopped')
-                return
-            messages = result_messages(result.count, result.cloud, self.settings.world_frame, stamp_ns,
-                                       f'{self.run_dir.name}/train_{index:03d}',
-                                       {'keyframes': n_keyframes, 'preset': configs.preset})
-            for name, msg in messages.items():
-                self._result_pubs[name].publish(msg)
-            write_report(self.run_dir / f'train_{index:03d}' / 'fruit_report.json', messages['fruit_report'].data)
-            self._update_run(state=NodeState.DONE, phase=None, progress=1.0, last_count=int(result.count.count),
-                             last_report=messages['fruit_report'].data)
-            self.get_logger().info(f'training run {index}: {result.count.count} fruits counted from '
-                                   f'{n_keyframes} keyframes; published on ~/fruit_count and friends')
-        except FruitNerfError as err:
-            self._training_failed(index, str(err))
-        except Exception as err:  # noqa: BLE001 - a failed run must not take the node down
-            self._training_failed(index, f'{type(err).__name__}: {err}')
-
-    def _training_failed(self, index: int, message: str) -> None:
-        self._update_run(state=NodeState.ERROR, last_error=message)
-        self.get_logger().error(f'training run {index} failed: {message}; the keyframes stay in '
-                                f'{self.store.directory}')
+        """Start a training run on the keyframes collected so far; returns (started, message)."""
+        return self.runs.start(self.settings)
 
     def stop_training(self, timeout_s: float = 10.0) -> None:
-        """Ask a running training to stop and wait up to ``timeout_s`` for it."""
-        self._stop_event.set()
-        if self._train_thread is not None:
-            self._train_thread.join(timeout_s)
+        """Ask a running training to stop (it checkpoints) and wait up to ``timeout_s`` for it."""
+        self.runs.stop(timeout_s)
+
+    def _publish_results(self, messages: dict[str, Any]) -> None:
+        for name, msg in messages.items():
+            self._result_pubs[name].publish(msg)
+
+    def _restore_runs(self) -> None:
+        """After a restart: publish the last finished count again and resume a run a kill interrupted."""
+        last = self.runs.last_finished_report()
+        if last is not None:
+            from std_msgs.msg import String, UInt32
+            count, report = last
+            self._publish_results({'fruit_count': UInt32(data=count), 'fruit_report': String(data=report)})
+            self.runs.update(state=NodeState.DONE, progress=1.0, last_count=count, last_report=report)
+        resumed = self.runs.resume_interrupted(self.settings)
+        if resumed is not None:
+            self._log(LogLevel.WARN, resumed)
+        self._auto_started = self.runs.index > 0  # auto-train happens once per output directory
 
     # ------------------------------------------------------------------ services
     def _on_train(self, request: Any, response: Any) -> Any:
@@ -295,16 +236,23 @@ class FruitCounterNode(Node):
         return response
 
     def _on_reset(self, request: Any, response: Any) -> Any:
-        self.stop_training(timeout_s=30.0)  # training stops within a step; its snapshot points into keyframes/
-        moved = self.store.reset()
+        """Answers at once: a running training is told to stop (and never resumed), the keyframes move aside."""
+        stopped = self.runs.abandon()
+        try:
+            moved = self.store.reset()
+        except OSError as err:
+            response.success, response.message = False, f'reset failed: cannot move the keyframes aside: {err}'
+            return response
         self.assembler.reset()
         self._auto_started = False
-        self._update_run(state=NodeState.COLLECTING, phase=None, progress=0.0, last_error='')
+        self.runs.update(state=NodeState.COLLECTING, phase=None, progress=0.0, last_error='')
         response.success = True
-        response.message = f'reset; previous keyframes kept in {moved}' if moved else 'reset; nothing collected yet'
+        response.message = (f'reset; previous keyframes kept in {moved}' if moved else 'reset; nothing collected yet') \
+            + (f'; training run {stopped} stopped (it is not resumed)' if stopped else '')
         return response
 
     def _on_save(self, request: Any, response: Any) -> Any:
+        self.store.flush()
         saved = [f'keyframes: {self.store.directory} ({len(self.store)})']
         report = self.run_status.last_report
         if report is not None:
@@ -314,12 +262,22 @@ class FruitCounterNode(Node):
 
     # ------------------------------------------------------------------ diagnostics
     def _publish_diagnostics(self) -> None:
+        try:
+            self._publish_diagnostics_now()
+        except Exception as err:  # noqa: BLE001 - an exception in a timer would stop the executor
+            self._warn_throttled(LogLevel.ERROR, 'diagnostics', f'/diagnostics not published: '
+                                 f'{type(err).__name__}: {err}')
+
+    def _publish_diagnostics_now(self) -> None:
         s = self.settings
         now = time.monotonic()
         with self._queue_lock:
-            rates = {role: n / s.diagnostics_period_s for role, n in self._rate_window.items()}
+            elapsed = max(now - self._rate_since, 1e-3)  # the timer may fire late under load
+            rates = {role: n / elapsed for role, n in self._rate_window.items()}
             self._rate_window = dict.fromkeys(self._rate_window, 0)
+            self._rate_since = now
             last_rx = dict(self._last_rx)
+            dropped = {self.assembler.topic_of(role): n for role, n in self.dropped.items()}
         run = self.run_status
         # Inputs are expected while collecting; once a drive is done and training runs, silence is normal.
         silent = [role for role in self.assembler.required_roles() if role in self._queues
@@ -328,10 +286,13 @@ class FruitCounterNode(Node):
         for role in silent:
             self._warn_throttled(LogLevel.WARN, f'silent:{role}', f'no message on {self.assembler.topic_of(role)} '
                                  f'for {now - last_rx.get(role, self._started):.0f} s')
-        status = NodeStatus.from_parts(run, self.assembler.status(), dropped_queue=sum(self.dropped.values()),
-                                       run_dir=self.run_dir,
+        frames = self.assembler.status()
+        write_error = self.store.last_write_error if frames.write_errors > self._write_errors_reported else ''
+        self._write_errors_reported = frames.write_errors
+        status = NodeStatus.from_parts(run, frames, dropped_queue=sum(dropped.values()), run_dir=self.run_dir,
                                        rates_hz={self.assembler.topic_of(r): v for r, v in rates.items()},
-                                       silent_topics=tuple(self.assembler.topic_of(r) for r in silent))
+                                       silent_topics=tuple(self.assembler.topic_of(r) for r in silent),
+                                       dropped_per_topic=dropped, write_error=write_error)
         self._diagnostics_pub.publish(diagnostics_msg(f'{self.get_name()}: pipeline', self.get_name(), status.level,
                                                       status.message(), status.values(),
                                                       self.get_clock().now().nanoseconds))
@@ -340,7 +301,12 @@ class FruitCounterNode(Node):
 def main(args: list[str] | None = None) -> int:
     """Run the node (``ros2 run fruitnerfpp_ros fruit_counter [--ros-args ...]``)."""
     return spin_node('fruit_counter', FruitCounterNode, lambda: MultiThreadedExecutor(num_threads=3), args,
-                     on_shutdown=lambda node: node.stop_training(timeout_s=5.0))
+                     on_shutdown=_shutdown)
+
+
+def _shutdown(node: FruitCounterNode) -> None:
+    node.stop_training(timeout_s=5.0)  # the run checkpoints; a restart resumes it
+    node.store.flush()
 
 
 if __name__ == '__main__':

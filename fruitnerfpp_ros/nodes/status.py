@@ -58,6 +58,8 @@ class AssemblerStatus:
         sync_unmatched: messages dropped unmatched, per input.
         waiting: matched frames waiting for camera_info or TF.
         dropped_waiting: frames that waited too long and were dropped.
+        write_errors: keyframes the store could not write (a full disk) and deferred index writes.
+        time_jumps: stamps that jumped back in time (a bag restarted, a clock reset): queues and TF history cleared.
     """
 
     keyframes: int
@@ -69,6 +71,8 @@ class AssemblerStatus:
     sync_unmatched: Mapping[str, int] = field(default_factory=dict)
     waiting: int = 0
     dropped_waiting: int = 0
+    write_errors: int = 0
+    time_jumps: int = 0
 
     @property
     def total_errors(self) -> int:
@@ -119,6 +123,9 @@ class NodeStatus:
         run_dir: the node's output directory.
         rates_hz: input rate per topic over the last diagnostics period (Hz).
         silent_topics: required inputs silent for longer than ``silent_input_warning_s``.
+        counters: what was skipped and why (``skipped/<role or kind>``, ``rejected/<reason>``,
+            ``dropped_queue/<topic>``, ``write_errors``, ``time_jumps``), each a count since the start.
+        write_error: the last failed keyframe write when one failed since the last snapshot ('' otherwise).
     """
 
     state: NodeState
@@ -133,26 +140,34 @@ class NodeStatus:
     run_dir: Path
     rates_hz: Mapping[str, float] = field(default_factory=dict)
     silent_topics: tuple[str, ...] = ()
+    counters: Mapping[str, int] = field(default_factory=dict)
+    write_error: str = ''
 
     @classmethod
     def from_parts(cls, run: RunStatus, frames: AssemblerStatus, *, dropped_queue: int, run_dir: Path,
-                   rates_hz: Mapping[str, float], silent_topics: tuple[str, ...]) -> 'NodeStatus':
+                   rates_hz: Mapping[str, float], silent_topics: tuple[str, ...],
+                   dropped_per_topic: Mapping[str, int] | None = None, write_error: str = '') -> 'NodeStatus':
         """The snapshot of a run status and the assembler's counters."""
+        counters = {f'skipped/{kind}': n for kind, n in sorted(frames.errors.items())}
+        counters.update({f'rejected/{reason}': n for reason, n in sorted(frames.rejected.items()) if n})
+        counters.update({f'dropped_queue/{topic}': n for topic, n in sorted((dropped_per_topic or {}).items())})
+        counters.update(write_errors=frames.write_errors, time_jumps=frames.time_jumps)
         return cls(run.state, run.phase, run.progress, run.last_error, run.last_count, frames.keyframes,
                    dropped_queue, frames.total_errors, frames.total_sync_unmatched, run_dir, dict(rates_hz),
-                   tuple(silent_topics))
+                   tuple(silent_topics), counters, write_error)
 
     @property
     def level(self) -> DiagnosticLevel:
-        """ERROR after a failed run, WARN while a required input is silent, else OK."""
-        if self.state is NodeState.ERROR:
+        """ERROR after a failed run or a failed keyframe write, WARN while a required input is silent, else OK."""
+        if self.state is NodeState.ERROR or self.write_error:
             return DiagnosticLevel.ERROR
         return DiagnosticLevel.WARN if self.silent_topics else DiagnosticLevel.OK
 
     def message(self) -> str:
-        """One line: state, phase and progress, silent inputs, the last error."""
+        """One line: state, phase and progress, silent inputs, a failed write, the last error."""
         return (f'{self.state}' + (f' {self.phase} {100 * self.progress:.0f}%' if self.phase else '')
                 + (f'; silent inputs: {", ".join(self.silent_topics)}' if self.silent_topics else '')
+                + (f'; {self.write_error}' if self.write_error else '')
                 + (f'; {self.last_error}' if self.last_error else ''))
 
     def values(self) -> dict[str, str]:
@@ -163,4 +178,5 @@ class NodeStatus:
                   'run_dir': str(self.run_dir), 'dropped_queue': str(self.dropped_queue),
                   'frame_errors': str(self.frame_errors), 'sync_unmatched': str(self.sync_unmatched)}
         values.update({f'rate_hz/{topic}': f'{hz:.1f}' for topic, hz in self.rates_hz.items()})
+        values.update({key: str(n) for key, n in self.counters.items()})
         return values

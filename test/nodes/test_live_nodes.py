@@ -155,7 +155,7 @@ def test_train_answer_and_report_name_the_same_keyframes_while_frames_keep_arriv
     from types import SimpleNamespace
 
     import fruitnerfpp_ros.core.pipeline as pipeline
-    import fruitnerfpp_ros.nodes.fruit_counter as fruit_counter
+    import fruitnerfpp_ros.nodes.training_runs as training_runs
     from fruitnerfpp_ros.core.clustering.config import ClusterConfig
     from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
     from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
@@ -167,7 +167,7 @@ def test_train_answer_and_report_name_the_same_keyframes_while_frames_keep_arriv
 
     def slow_configs(settings: Any) -> PipelineConfigs:  # the training thread's first step (a torch import) is slow
         assert frames_arrived.wait(20)
-        return PipelineConfigs(None, None, ClusterConfig(n_jobs=1), 'stand-in', ())
+        return PipelineConfigs(SimpleNamespace(cpu_threads=0), None, ClusterConfig(n_jobs=1), 'stand-in', ())
 
     def stand_in_pipeline(dataset_dir: Path, run_dir: Path, **kwargs: Any) -> Any:
         seen['trained_on'] = len(read_transforms(dataset_dir).frames)
@@ -178,7 +178,7 @@ def test_train_answer_and_report_name_the_same_keyframes_while_frames_keep_arriv
         fruit = Fruit(1, np.array([0.005, 1, 0]), 0.07, np.full(3, 0.07), 2)
         return SimpleNamespace(count=CountResult(np.array([1, 1, 0], np.int32), [fruit]), cloud=cloud, stopped=False)
 
-    monkeypatch.setattr(fruit_counter, 'pipeline_configs', slow_configs)
+    monkeypatch.setattr(training_runs, 'pipeline_configs', slow_configs)
     monkeypatch.setattr(pipeline, 'run_pipeline', stand_in_pipeline)
     counter = _counter(graph, tmp_path, min_translation_m=0.1, min_keyframes=3)
     msgs = bf.messages(8)

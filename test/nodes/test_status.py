@@ -25,9 +25,11 @@ def test_stages_outside_the_pipeline_report_training() -> None:
 
 def _status(run: RunStatus, silent: tuple[str, ...] = ()) -> NodeStatus:
     frames = AssemblerStatus(7, received={'image': 9}, errors={'image': 1, 'frame': 2},
-                             sync_unmatched={'image': 3, 'mask': 1})
+                             rejected={'too_close': 5, 'blurry': 0}, sync_unmatched={'image': 3, 'mask': 1},
+                             write_errors=1, time_jumps=2)
     return NodeStatus.from_parts(run, frames, dropped_queue=4, run_dir=Path('/tmp/run'),
-                                 rates_hz={'/camera/image_raw': 10.04}, silent_topics=silent)
+                                 rates_hz={'/camera/image_raw': 10.04}, silent_topics=silent,
+                                 dropped_per_topic={'/camera/image_raw': 4})
 
 
 def test_diagnostics_values_keep_the_published_keys_and_formats() -> None:
@@ -35,7 +37,8 @@ def test_diagnostics_values_keep_the_published_keys_and_formats() -> None:
     assert status.values() == {
         'state': 'exporting', 'phase': 'export', 'progress': '0.457', 'keyframes': '7', 'fruit_count': '',
         'run_dir': '/tmp/run', 'dropped_queue': '4', 'frame_errors': '3', 'sync_unmatched': '4',
-        'rate_hz//camera/image_raw': '10.0'}
+        'rate_hz//camera/image_raw': '10.0', 'skipped/frame': '2', 'skipped/image': '1', 'rejected/too_close': '5',
+        'dropped_queue//camera/image_raw': '4', 'write_errors': '1', 'time_jumps': '2'}
     assert status.message() == 'exporting export 46%' and status.level is DiagnosticLevel.OK
     done = _status(RunStatus(NodeState.DONE, None, 1.0, last_count=12)).values()
     assert (done['state'], done['phase'], done['fruit_count']) == ('done', '', '12')
@@ -47,6 +50,14 @@ def test_silent_inputs_warn_and_a_failed_run_is_an_error() -> None:
     assert silent.message() == 'collecting; silent inputs: /camera/image_raw, /camera/pose'
     failed = _status(RunStatus(NodeState.ERROR, last_error='DatasetError: no keyframes'))
     assert failed.level is DiagnosticLevel.ERROR and failed.message() == 'error; DatasetError: no keyframes'
+
+
+def test_a_failed_keyframe_write_is_an_error_in_diagnostics() -> None:
+    frames = AssemblerStatus(3, write_errors=1)
+    status = NodeStatus.from_parts(RunStatus(), frames, dropped_queue=0, run_dir=Path('/r'), rates_hz={},
+                                   silent_topics=(), write_error='keyframe 3 not stored (No space left on device)')
+    assert status.level is DiagnosticLevel.ERROR
+    assert status.message() == 'collecting; keyframe 3 not stored (No space left on device)'
 
 
 def test_assembler_status_totals() -> None:

@@ -4,7 +4,9 @@ ROS-free: it holds 4x4 transforms; ``nodes.conversions.add_tf_message`` feeds it
 
 Every child frame has one parent (the TF tree). Static edges hold one transform; dynamic edges keep a time
 series (bounded by ``cache_ns``) and are interpolated to the requested stamp with
-:func:`fruitnerfpp_ros.core.geometry.interpolate_transform`.
+:func:`fruitnerfpp_ros.core.geometry.interpolate_transform`. A transform older than an edge's whole cache means
+the clock jumped back (a bag played again): that edge's history starts over from it, as tf2 clears its buffer on
+a time jump, instead of dropping every transform of the new time line.
 """
 
 from __future__ import annotations
@@ -63,6 +65,8 @@ class TfBuffer:
         if static:
             edge.static = T
             return
+        if edge.stamps and stamp_ns < edge.stamps[-1] - self.cache_ns:  # the clock jumped back: a new time line
+            edge.stamps, edge.transforms = [], []
         i = bisect.bisect_left(edge.stamps, stamp_ns)
         if i < len(edge.stamps) and edge.stamps[i] == stamp_ns:
             edge.transforms[i] = T
@@ -72,6 +76,15 @@ class TfBuffer:
         cut = bisect.bisect_left(edge.stamps, edge.stamps[-1] - self.cache_ns)
         if cut:
             del edge.stamps[:cut], edge.transforms[:cut]
+
+    def clear(self, *, static: bool = False) -> None:
+        """Forget every dynamic transform (and the static ones too when ``static``)."""
+        if static:
+            self._edges.clear()
+            return
+        for edge in self._edges.values():
+            edge.stamps, edge.transforms = [], []
+        self._edges = {child: e for child, e in self._edges.items() if e.static is not None or e.stamps}
 
     def _edge_transform(self, child: str, edge: _Edge, stamp_ns: int) -> np.ndarray:
         if edge.static is not None:
