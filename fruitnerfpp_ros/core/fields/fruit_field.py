@@ -44,14 +44,14 @@ class FieldConfig:
     sh_degree: int = 4
     """Spherical-harmonic degree (1..4) of the view-direction encoding."""
     semantic_grid: HashGridConfig = _field(default_factory=lambda: HashGridConfig(
-        num_levels=8, log2_table_size=17, base_resolution=16, max_resolution=512))
+        num_levels=8, log2_table_size=17, coarsest_cell=5.0, finest_cell=0.15))
     """The semantic head's own position encoding, next to the detached geometry feature."""
     semantic_layers: int = 2
     """Hidden layers of the semantic MLP."""
     embedding_dim: int = 32
     """D, the instance embedding size (the paper needs D >= 16 for apples)."""
     instance_grid: HashGridConfig = _field(default_factory=lambda: HashGridConfig(
-        num_levels=8, log2_table_size=17, base_resolution=16, max_resolution=512))
+        num_levels=8, log2_table_size=17, coarsest_cell=5.0, finest_cell=0.15))
     """The instance head's own position encoding."""
     instance_hidden_dim: int = 64
     """Width of the instance MLP."""
@@ -79,25 +79,33 @@ class FruitField(nn.Module):
     Args:
         config: encodings and heads.
         aabb: [2, 3] scene box, metres.
+        fruit_diameter_m: the scene's fruit diameter: the grids' cell sizes are given in it.
         generator: random source of every initial weight (None: torch's global one). The trainer passes its own,
             so a run is reproducible without seeding the process.
     """
 
-    def __init__(self, config: FieldConfig, aabb: np.ndarray | torch.Tensor,
+    def __init__(self, config: FieldConfig, aabb: np.ndarray | torch.Tensor, fruit_diameter_m: float,
                  generator: torch.Generator | None = None) -> None:
         super().__init__()
         self.config = config
+        self.fruit_diameter_m = float(fruit_diameter_m)
         self.register_buffer('aabb', torch.as_tensor(np.asarray(aabb, dtype=np.float32)).clone())
         c = config
-        self.encoding = HashGridEncoding(c.geometry_grid, generator=generator)
+        extent = float((self.aabb[1] - self.aabb[0]).max())
+
+        def grid(grid_config: HashGridConfig) -> HashGridEncoding:
+            return HashGridEncoding(grid_config, *grid_config.resolutions(extent, self.fruit_diameter_m),
+                                    generator=generator)
+
+        self.encoding = grid(c.geometry_grid)
         self.density_mlp = make_mlp(self.encoding.output_dim, c.hidden_dim, c.density_layers, 1 + c.geo_feature_dim)
         self.color_mlp = make_mlp(c.geo_feature_dim + c.sh_degree ** 2, c.hidden_dim, c.color_layers, 3)
         # Colour of rays leaving the box (sky, distant ground) as a function of the ray direction.
         self.background = nn.Linear(c.sh_degree ** 2, 3)
-        self.semantic_encoding = HashGridEncoding(c.semantic_grid, generator=generator)
+        self.semantic_encoding = grid(c.semantic_grid)
         self.semantic_mlp = make_mlp(self.semantic_encoding.output_dim + c.geo_feature_dim, c.hidden_dim,
                                      c.semantic_layers, 1)
-        self.instance_encoding = HashGridEncoding(c.instance_grid, generator=generator)
+        self.instance_encoding = grid(c.instance_grid)
         self.instance_mlp = make_mlp(self.instance_encoding.output_dim + c.geo_feature_dim, c.instance_hidden_dim,
                                      c.instance_layers, c.embedding_dim)
         for mlp in (self.density_mlp, self.color_mlp, self.semantic_mlp, self.instance_mlp):

@@ -22,7 +22,11 @@ _PRIMES = (1, 2654435761 - 2 ** 32, 805459861)
 
 @dataclass(frozen=True)
 class HashGridConfig:
-    """One multiresolution hash grid over the scene box."""
+    """One multiresolution hash grid over the scene box, its cells sized in fruit diameters.
+
+    The finest and coarsest resolutions follow from the box and the scene's fruit diameter d (see
+    :meth:`resolutions`): a 6 m box and a 2 m box around the same tree resolve its fruit alike.
+    """
 
     num_levels: int = 16
     """Number of resolution levels L."""
@@ -30,10 +34,12 @@ class HashGridConfig:
     """Features F stored per vertex."""
     log2_table_size: int = 19
     """log2 of the table entries T per level (at most 30)."""
-    base_resolution: int = 16
-    """Coarsest grid resolution over the box."""
-    max_resolution: int = 2048
-    """Finest grid resolution over the box (geometric progression in between)."""
+    coarsest_cell: float = 5.0
+    """Cell size of the coarsest level, in fruit diameters."""
+    finest_cell: float = 0.05
+    """Cell size of the finest level, in fruit diameters (geometric progression in between)."""
+    max_resolution: int = 8192
+    """Cap on the finest resolution (a huge box of small fruit would otherwise ask for more)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.num_levels <= 64 or self.features_per_level < 1:
@@ -41,14 +47,22 @@ class HashGridConfig:
                               f'{self.num_levels} / {self.features_per_level}')
         if not 4 <= self.log2_table_size <= 30:
             raise ConfigError(f'hash grid: log2_table_size must be in 4..30, got {self.log2_table_size}')
-        if not 1 <= self.base_resolution <= self.max_resolution:
-            raise ConfigError(f'hash grid: need 1 <= base_resolution <= max_resolution, got '
-                              f'{self.base_resolution} / {self.max_resolution}')
+        if not 0 < self.finest_cell <= self.coarsest_cell:
+            raise ConfigError(f'hash grid: need 0 < finest_cell <= coarsest_cell (fruit diameters), got '
+                              f'{self.finest_cell} / {self.coarsest_cell}')
+        if self.max_resolution < 2:
+            raise ConfigError('hash grid: max_resolution must be >= 2')
 
     @property
     def output_dim(self) -> int:
         """Features per point, L * F."""
         return self.num_levels * self.features_per_level
+
+    def resolutions(self, extent_m: float, fruit_diameter_m: float) -> tuple[int, int]:
+        """(coarsest, finest) grid resolution over a box whose longest side is ``extent_m`` metres."""
+        finest = min(self.max_resolution, max(2, math.ceil(extent_m / (self.finest_cell * fruit_diameter_m))))
+        coarsest = min(finest, max(1, math.ceil(extent_m / (self.coarsest_cell * fruit_diameter_m))))
+        return coarsest, finest
 
 
 class HashGridEncoding(nn.Module):
@@ -59,20 +73,25 @@ class HashGridEncoding(nn.Module):
     backward of ``index_select`` (an index_add), deterministic on the CPU.
 
     Args:
-        config: levels, features, table size and resolutions.
+        config: levels, features and table size.
+        base_resolution: coarsest grid resolution over the unit cube.
+        max_resolution: finest grid resolution (geometric progression in between).
         init_scale: table entries start uniform in [-init_scale, init_scale].
         generator: random source of the initial table (None: torch's global one).
     """
 
-    def __init__(self, config: HashGridConfig, *, init_scale: float = 1e-4,
-                 generator: torch.Generator | None = None) -> None:
+    def __init__(self, config: HashGridConfig, base_resolution: int, max_resolution: int, *,
+                 init_scale: float = 1e-4, generator: torch.Generator | None = None) -> None:
         super().__init__()
+        if not 1 <= base_resolution <= max_resolution:
+            raise ConfigError(f'hash grid: need 1 <= base_resolution <= max_resolution, got {base_resolution} / '
+                              f'{max_resolution}')
         self.config = config
         num_levels, features_per_level = config.num_levels, config.features_per_level
         self.num_levels = num_levels
         self.features_per_level = features_per_level
         self.table_size = 2 ** config.log2_table_size
-        base, finest = config.base_resolution, config.max_resolution
+        base, finest = base_resolution, max_resolution
         growth = math.exp((math.log(finest) - math.log(base)) / max(num_levels - 1, 1))
         resolutions = [int(math.floor(base * growth ** i)) for i in range(num_levels)]
         dense = torch.tensor([(r + 1) ** 3 <= self.table_size for r in resolutions])

@@ -49,6 +49,8 @@ class RenderOutput(NamedTuple):
         num_samples: samples evaluated by the field.
         distortion: mean distortion loss of the colour weights over the first ``distortion_rays`` rays (metres;
             differentiable), or None.
+        depth: [N] median termination distance (m): where the accumulated weight reaches half the ray's opacity
+            (``inf`` for a ray with no weight), or None when not asked for.
     """
 
     rgb: torch.Tensor | None
@@ -57,6 +59,7 @@ class RenderOutput(NamedTuple):
     embedding: torch.Tensor | None
     num_samples: int
     distortion: torch.Tensor | None = None
+    depth: torch.Tensor | None = None
 
 
 def autocast_for(device: torch.device, enabled: bool) -> contextlib.AbstractContextManager:
@@ -80,7 +83,7 @@ def _early_terminated(samples: RaySamples, geometry: GeometryFn, stop_transmitta
 def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, settings: RenderSettings, *,
                 jitter: torch.Tensor | None = None, colour: bool = True, semantic: bool = False,
                 instance: bool = False, geometry_fn: GeometryFn | None = None,
-                distortion_rays: int | None = None) -> RenderOutput:
+                distortion_rays: int | None = None, depth: bool = False) -> RenderOutput:
     """Volume-render ``rays`` through the field.
 
     Gradients: colour/opacity reach density and colour; the fruit probability and the embedding are composited
@@ -98,6 +101,7 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
         geometry_fn: replacement for ``field.geometry`` (e.g. a compiled version).
         distortion_rays: the distortion loss covers rays ``0..distortion_rays-1`` only (the uniformly drawn part of a
             training batch); None = every ray.
+        depth: also return each ray's median termination distance.
     """
     geometry = geometry_fn or field.geometry
     device = rays.origins.device
@@ -128,4 +132,15 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             emb = field.embedding(samples.positions[keep], geo.features.detach()[keep])
             out = emb.new_zeros(samples.num_rays, emb.shape[1])
             embedding = out.index_add(0, samples.ray_index[keep], w[keep, None] * emb)
-    return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist)
+        median = _median_depth(samples, rays, weights.detach(), opacity.detach()) if depth else None
+    return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist, median)
+
+
+def _median_depth(samples: RaySamples, rays: RayBundle, weights: torch.Tensor, opacity: torch.Tensor) -> torch.Tensor:
+    """Per ray, the distance of the first sample where the accumulated weight reaches half the ray's opacity."""
+    weights = weights.float()
+    reached = exclusive_cumsum(samples, weights) + weights >= 0.5 * opacity.float()[samples.ray_index]
+    t = ((samples.positions - rays.origins[samples.ray_index]) * rays.directions[samples.ray_index]).sum(-1)
+    t = torch.where(reached & (weights > 0), t.float(), torch.full_like(t, float('inf'), dtype=torch.float32))
+    return torch.full((samples.num_rays,), float('inf'), device=t.device).scatter_reduce(
+        0, samples.ray_index, t, 'amin')

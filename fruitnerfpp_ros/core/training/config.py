@@ -3,13 +3,9 @@
 Presets (``presets.py``): ``tiny`` (CPU tests, 96 px scenes in about a minute), ``cpu``, ``default`` (GPU),
 ``paper`` (the paper's long schedule). ``config/train_<preset>.yaml`` hold the same values as YAML.
 
-Density scale (for the export): densities are in 1/m. A sample of thickness ``render.step`` metres is half
-opaque when ``density >= ln 2 / step``: the ``surface_density`` method gives that value for a box, ~34/m for the
-tiny preset on the 96 px apple scene. ``TrainedScene.surface_density`` (used by the export) takes the smaller of
-it and the 90th percentile of the trained occupancy grid's densities (~2/m for the tiny run). Fields trained
-briefly stay semi-transparent: the tiny CPU run measures a median density of ~0.25/m (90th percentile ~1.4/m) at
-random points of the box and ~2.4/m median, ~30/m max on the GT fruit surfaces, so export thresholds for tiny runs
-should sit near 2-5/m (or a multiple of the box median), with fruit_prob >= 0.9 doing most of the selection.
+Scale: every length follows from the scene's fruit diameter d (``scale``, measured from the masks and poses before
+training: core/data/scene_scale.py): the marching step, the occupancy and hash-grid cells. The scene box is where
+the cameras' views overlap, cut to the fruit region found by the same measurement plus ``data.box_margin_m``.
 """
 
 from __future__ import annotations
@@ -18,13 +14,14 @@ import math
 from dataclasses import dataclass
 from dataclasses import field as _field
 
+from fruitnerfpp_ros.core.data.scene_scale import ScaleConfig
 from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, HashGridConfig
 from fruitnerfpp_ros.core.preset_names import PRESET_NAMES  # noqa: F401 - re-exported
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['TrainConfig', 'DataConfig', 'RenderConfig', 'StageSchedule', 'GeometryStageConfig',
            'SemanticStageConfig', 'InstanceStageConfig', 'OptimizerConfig', 'FieldConfig', 'HashGridConfig',
-           'PRESET_NAMES']
+           'ScaleConfig', 'PRESET_NAMES']
 
 
 @dataclass(frozen=True)
@@ -43,6 +40,13 @@ class DataConfig:
     what the cameras see around it."""
     aabb_padding: float = 0.05
     """Derived box grown by this fraction of its largest side on every face."""
+    box_margin_m: float | None = 1.0
+    """The camera-derived box is cut to the fruit region (where the fruit masks of many views agree, see
+    ``scale``) grown by this margin (m): room for the canopy, the ground under the tree and what hides the fruit.
+    None keeps the whole camera-derived box."""
+    camera_clearance: float = 0.5
+    """... and by at most this fraction of the cameras' median distance from the fruit region, so the box stops
+    short of the cameras (space next to one camera fills with floaters)."""
     min_fruit_pixels: int = 4
     """Fruit masks with fewer pixels are ignored by the group sampler."""
 
@@ -51,15 +55,17 @@ class DataConfig:
 class RenderConfig:
     """Ray marching and empty-space skipping."""
 
-    samples_per_ray: int = 768
-    """Step = box diagonal / samples_per_ray (metres). The step must stay well below the fruit size: on the
-    300-view apple tree (11 m box diagonal) 256 (4.3 cm steps) left held-out semantic IoU at 0.17, 768 (1.4 cm)
-    reached 0.41 with a shorter schedule (bench/results/gpu_default_preset.md). Occupancy skipping keeps the
-    samples actually evaluated to ~12-25 per ray."""
+    step: float = 0.19
+    """Ray-marching step in fruit diameters (0.19 d = 1.4 cm for 7.5 cm apples). The step must stay well below the
+    fruit size: on the 300-view apple tree 4.3 cm steps (0.57 d) left held-out semantic IoU at 0.17, 1.4 cm reached
+    0.41 with a shorter schedule (bench/results/gpu_default_preset.md). Occupancy skipping keeps the samples
+    actually evaluated to ~12-25 per ray."""
     near: float = 0.05
     """Minimum sample distance from the camera, metres."""
+    occupancy_cell: float = 0.45
+    """Occupancy grid cell size in fruit diameters (the resolution follows from the box's longest side)."""
     occupancy_resolution: int = 192
-    """Occupancy grid cells per axis."""
+    """Cap on the occupancy grid's cells per axis (memory and update cost grow with its cube)."""
     occupancy_threshold: float = 0.01
     """Optical thickness (density * step) above which an occupancy cell is occupied."""
     occupancy_decay: float = 0.95
@@ -76,9 +82,14 @@ class RenderConfig:
     compile: bool = True
     """torch.compile the field's MLP heads on CUDA (ignored on the CPU or when unavailable)."""
 
-    def step_size(self, aabb_diagonal: float) -> float:
-        """Ray-marching step in metres for a box of the given diagonal."""
-        return aabb_diagonal / self.samples_per_ray
+    def step_m(self, fruit_diameter_m: float) -> float:
+        """Ray-marching step in metres."""
+        return self.step * fruit_diameter_m
+
+    def occupancy_cells(self, extent_m: float, fruit_diameter_m: float) -> int:
+        """Occupancy grid resolution for a box whose longest side is ``extent_m``."""
+        cells = math.ceil(extent_m / (self.occupancy_cell * fruit_diameter_m))
+        return int(min(self.occupancy_resolution, max(8, cells)))
 
 
 @dataclass(frozen=True)
@@ -186,6 +197,8 @@ class TrainConfig:
     """Stage 2."""
     instance: InstanceStageConfig = _field(default_factory=InstanceStageConfig)
     """Stage 3."""
+    scale: ScaleConfig = _field(default_factory=ScaleConfig)
+    """The fruit diameter (measured from the masks and poses, or given) every length follows from."""
     optimizer: OptimizerConfig = _field(default_factory=OptimizerConfig)
     """Adam settings."""
     seed: int = 0
@@ -210,9 +223,9 @@ class TrainConfig:
         if self.data.aabb is not None and len(self.data.aabb) != 6:
             raise ConfigError('data.aabb needs 6 numbers: xmin ymin zmin xmax ymax zmax')
 
-    def surface_density(self, aabb_diagonal: float) -> float:
+    def surface_density(self, fruit_diameter_m: float) -> float:
         """Density (1/m) at which one ray-marching step is half opaque: a surface / empty-space threshold."""
-        return math.log(2.0) / self.render.step_size(aabb_diagonal)
+        return math.log(2.0) / self.render.step_m(fruit_diameter_m)
 
     @classmethod
     def preset(cls, name: str) -> 'TrainConfig':

@@ -20,28 +20,27 @@ from torch import nn
 
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
 from fruitnerfpp_ros.core.data.rays import PixelBatch, RayBundle, rays_for_pixels
-from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
+from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, FruitField, GeometryOutput
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
 from fruitnerfpp_ros.core.rendering.renderer import RenderOutput, RenderSettings, render_rays
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.losses import photometric_loss, prototype_infonce, semantic_loss
 from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
 
-__all__ = ['FruitNeRFModel', 'render_settings', 'field_config_for']
+__all__ = ['FruitNeRFModel', 'render_settings', 'field_config_for', 'occupancy_grid']
 
 GeometryFn = Callable[[torch.Tensor], GeometryOutput]
 
 
-def render_settings(config: TrainConfig, aabb: np.ndarray) -> RenderSettings:
-    """How the rays of a run over the box ``aabb`` [2, 3] are marched."""
-    diagonal = float(np.linalg.norm(np.asarray(aabb)[1] - np.asarray(aabb)[0]))
-    return RenderSettings(step=config.render.step_size(diagonal), near=config.render.near,
+def render_settings(config: TrainConfig, fruit_diameter_m: float) -> RenderSettings:
+    """How the rays of a run on fruit of ``fruit_diameter_m`` are marched."""
+    return RenderSettings(step=config.render.step_m(fruit_diameter_m), near=config.render.near,
                           mixed_precision=config.render.mixed_precision,
                           weight_threshold=config.instance.weight_threshold,
                           stop_transmittance=config.render.stop_transmittance)
 
 
-def field_config_for(config: TrainConfig, step: float):  # -> FieldConfig
+def field_config_for(config: TrainConfig, step: float) -> FieldConfig:
     """The field config with the automatic density bias resolved for the marching ``step`` (m).
 
     Untrained space starts just below the occupancy threshold (as instant-NGP does at its scale): the first
@@ -51,6 +50,15 @@ def field_config_for(config: TrainConfig, step: float):  # -> FieldConfig
         return config.field
     return dataclasses.replace(config.field,
                                density_bias=math.log(0.5 * config.render.occupancy_threshold / step))
+
+
+def occupancy_grid(config: TrainConfig, aabb: np.ndarray, fruit_diameter_m: float) -> OccupancyGrid:
+    """An empty occupancy grid over ``aabb`` with cells of ``config.render.occupancy_cell`` fruit diameters."""
+    render = config.render
+    extent = float(np.max(np.asarray(aabb)[1] - np.asarray(aabb)[0]))
+    return OccupancyGrid(torch.as_tensor(aabb, dtype=torch.float32),
+                         resolution=render.occupancy_cells(extent, fruit_diameter_m),
+                         threshold=render.occupancy_threshold, decay=render.occupancy_decay)
 
 
 class _GuardedCompile:
@@ -77,18 +85,19 @@ class FruitNeRFModel(nn.Module):
         config: the run's training config.
         dataset: the loaded dataset (images and masks are copied to ``device``).
         aabb: [2, 3] scene box, metres.
+        fruit_diameter_m: the scene's fruit diameter (every length of the field and the marching follows from it).
         device: torch device.
     """
 
-    def __init__(self, config: TrainConfig, dataset: SceneDataset, aabb: np.ndarray, device: torch.device) -> None:
+    def __init__(self, config: TrainConfig, dataset: SceneDataset, aabb: np.ndarray, fruit_diameter_m: float,
+                 device: torch.device) -> None:
         super().__init__()
         self.config = config
-        self.settings = render_settings(config, aabb)
+        self.settings = render_settings(config, fruit_diameter_m)
         init = torch.Generator().manual_seed(config.seed)  # weights are reproducible without seeding the process
-        self.field = FruitField(field_config_for(config, self.settings.step), aabb, generator=init).to(device)
-        render = config.render
-        self.grid = OccupancyGrid(torch.as_tensor(aabb, dtype=torch.float32), resolution=render.occupancy_resolution,
-                                  threshold=render.occupancy_threshold, decay=render.occupancy_decay).to(device)
+        self.field = FruitField(field_config_for(config, self.settings.step), aabb, fruit_diameter_m,
+                                generator=init).to(device)
+        self.grid = occupancy_grid(config, aabb, fruit_diameter_m).to(device)
         trained = torch.zeros(dataset.num_views, dtype=torch.bool)
         trained[dataset.train_indices] = True
         self.pose_refinement = PoseRefinement(trained).to(device) if config.geometry.pose_lr > 0 else None
@@ -97,7 +106,7 @@ class FruitNeRFModel(nn.Module):
         self.register_buffer('poses', dataset.T_world_camera.to(device), persistent=False)
         self.register_buffer('intrinsics', dataset.intrinsics.to(device), persistent=False)
         self.geometry_fn: GeometryFn = self.field.geometry
-        if device.type == 'cuda' and render.compile and hasattr(torch, 'compile'):
+        if device.type == 'cuda' and config.render.compile and hasattr(torch, 'compile'):
             self.geometry_fn = _GuardedCompile(self.field.geometry)
 
     @property

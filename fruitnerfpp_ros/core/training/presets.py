@@ -18,20 +18,21 @@ __all__ = ['preset']
 
 def _tiny() -> TrainConfig:
     return TrainConfig(
-        # A coarse geometry grid (6 levels up to 128 over the box) overfits 21 views of 96 px less than a finer one:
-        # held-out PSNR, semantic IoU and the count all improved (docs/results/tiny_preset.md).
+        # A coarse geometry grid (finest cells 0.28 fruit diameters: 6 levels up to 128 over the 2.6 m test box)
+        # overfits 21 views of 96 px less than a finer one: held-out PSNR, semantic IoU and the count all improved
+        # (docs/results/tiny_preset.md). Semantic and instance grids go to 0.14 d (256 over that box).
         field=FieldConfig(
-            geometry_grid=HashGridConfig(num_levels=6, log2_table_size=15, base_resolution=8, max_resolution=128),
+            geometry_grid=HashGridConfig(num_levels=6, log2_table_size=15, coarsest_cell=4.5, finest_cell=0.28),
             hidden_dim=32, density_layers=1, color_layers=1, sh_degree=2, semantic_layers=1,
-            semantic_grid=HashGridConfig(num_levels=6, log2_table_size=15, base_resolution=8, max_resolution=256),
+            semantic_grid=HashGridConfig(num_levels=6, log2_table_size=15, coarsest_cell=4.5, finest_cell=0.14),
             embedding_dim=32,
-            instance_grid=HashGridConfig(num_levels=6, log2_table_size=15, base_resolution=8, max_resolution=256),
+            instance_grid=HashGridConfig(num_levels=6, log2_table_size=15, coarsest_cell=4.5, finest_cell=0.14),
             instance_hidden_dim=32, instance_layers=1),
         # A box that reaches further into the ground and sky the cameras see (view fraction 0.1, 3x the sparse
-        # points) and 1.4 cm steps (288 per diagonal): floaters that painted the world outside the old box carried
-        # fruit probability; seed 2 of the test scene went from F1 0.21 to 0.95.
+        # points): floaters that painted the world outside the old box carried fruit probability; seed 2 of the
+        # test scene went from F1 0.21 to 0.95. Occupancy cells of 0.75 d (48 over the test box).
         data=DataConfig(min_view_fraction=0.1, points_growth=3.0),
-        render=RenderConfig(samples_per_ray=288, occupancy_resolution=48, occupancy_update_every=8, chunk_rays=4096),
+        render=RenderConfig(occupancy_cell=0.75, occupancy_resolution=64, occupancy_update_every=8, chunk_rays=4096),
         geometry=GeometryStageConfig(iterations=600, batch_rays=640, lr=2e-2),
         # fruit_fraction 0.5 taught a fruit prior of 50 % (fruit is ~5 % of a view): fruit probability >= 0.9 spread
         # over the canopy. 0.15 and 400 steps: held-out IoU 0.28 -> 0.56 / 0.50 / 0.30 on three seeds of the test
@@ -58,7 +59,7 @@ def _paper() -> TrainConfig:
         geometry=GeometryStageConfig(iterations=30000, batch_rays=4096, lr=1e-2),
         semantic=SemanticStageConfig(iterations=10000, batch_rays=4096, lr=1e-2),
         instance=InstanceStageConfig(iterations=20000, groups=8, group_size=8, pixels_per_fruit=32),
-        render=RenderConfig(samples_per_ray=1024, occupancy_resolution=256),
+        render=RenderConfig(step=0.14, occupancy_cell=0.35, occupancy_resolution=256),
         checkpoint_every=2000, log_every=100)
 
 

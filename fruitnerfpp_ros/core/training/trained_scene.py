@@ -11,16 +11,30 @@ import torch
 from fruitnerfpp_ros.core.config_io import config_from_mapping
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField
+from fruitnerfpp_ros.core.data.scene_scale import SceneScale
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
+from fruitnerfpp_ros.core.rendering.renderer import RenderSettings
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
 from fruitnerfpp_ros.core.training.config import TrainConfig
+from fruitnerfpp_ros.core.training.model import occupancy_grid, render_settings
+from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
 from fruitnerfpp_ros.core.training.run_dir import RunDir
 from fruitnerfpp_ros.errors import CheckpointError
 
-__all__ = ['TrainedScene', 'load_trained_scene', 'CHECKPOINT_VERSION']
+__all__ = ['TrainedScene', 'load_trained_scene', 'CHECKPOINT_VERSION', 'SCALE_JSON', 'scale_from_json']
 
-#: Version of the checkpoint layout (2: nested hash-grid configs, no outer field, no global random states).
-CHECKPOINT_VERSION = 2
+#: Version of the checkpoint layout (3: the scene's fruit scale; 2: nested hash-grid configs, no outer field).
+CHECKPOINT_VERSION = 3
+#: The run's scale (fruit diameter, fruit region, scene box), written when training starts.
+SCALE_JSON = 'scale.json'
+
+
+def scale_from_json(data: dict) -> SceneScale:
+    """The :class:`SceneScale` of its ``to_json`` form."""
+    region = data.get('fruit_region')
+    return SceneScale(float(data['fruit_diameter_m']), str(data['source']),
+                      None if region is None else np.asarray(region, np.float64), int(data['n_fruit_voxels']),
+                      int(data['n_masks_measured']))
 
 
 @dataclass(frozen=True)
@@ -34,6 +48,8 @@ class TrainedScene:
         dataset_dir: the dataset it was trained on.
         completed_stages: stages finished (3 for a complete run).
         occupancy: the final occupancy grid (cells with density), on the field's device.
+        scale: the scene's fruit diameter and fruit region.
+        pose_corrections: the learned per-view pose corrections (pose refinement on), else None.
     """
 
     field: FruitField
@@ -42,23 +58,41 @@ class TrainedScene:
     dataset_dir: Path
     completed_stages: int
     occupancy: OccupancyGrid
+    scale: SceneScale
+    pose_corrections: PoseRefinement | None = None
+
+    @property
+    def fruit_diameter_m(self) -> float:
+        return self.scale.fruit_diameter_m
 
     @property
     def march_step(self) -> float:
-        """Ray-marching step (m) of the scene box: the default export voxel size."""
-        return self.config.render.step_size(float(np.linalg.norm(self.aabb[1] - self.aabb[0])))
+        """Ray-marching step (m)."""
+        return self.config.render.step_m(self.fruit_diameter_m)
+
+    @property
+    def render_settings(self) -> RenderSettings:
+        """How this run's rays are marched."""
+        return render_settings(self.config, self.fruit_diameter_m)
 
     @property
     def surface_density(self) -> float:
-        """Density threshold (1/m) separating surfaces from empty space, for the export.
+        """Density threshold (1/m) separating surfaces from empty space, for the grid export.
 
         The smaller of ``ln 2 / step`` (one marching step half opaque: right for a converged, opaque field) and
         the 90th percentile of the occupancy grid's densities (right for briefly trained, semi-transparent
         fields such as the tiny preset's, whose fruit surfaces reach a few 1/m only).
         """
-        opaque = self.config.surface_density(float(np.linalg.norm(self.aabb[1] - self.aabb[0])))
+        opaque = self.config.surface_density(self.fruit_diameter_m)
         grid = float(torch.quantile(self.occupancy.values.float().cpu(), 0.9)) / self.march_step
         return min(opaque, grid) if grid > 0 else opaque
+
+    def poses(self, recorded: torch.Tensor) -> torch.Tensor:
+        """The camera-to-world poses [V, 4, 4] the run trained with: ``recorded``, corrected when refined."""
+        if self.pose_corrections is None:
+            return recorded
+        with torch.no_grad():
+            return self.pose_corrections(recorded.to(self.pose_corrections.correction.device))
 
 
 def load_trained_scene(run_dir: str | Path, device: str = 'auto') -> TrainedScene:
@@ -80,15 +114,21 @@ def load_trained_scene(run_dir: str | Path, device: str = 'auto') -> TrainedScen
     except Exception as err:
         raise CheckpointError(f'{run.latest_checkpoint}: stored config is invalid: {err}') from err
     aabb = np.asarray(state['aabb'], dtype=np.float64)
-    field = FruitField(config.field, aabb).to(dev)
-    grid = OccupancyGrid(torch.as_tensor(aabb, dtype=torch.float32), resolution=config.render.occupancy_resolution,
-                         threshold=config.render.occupancy_threshold, decay=config.render.occupancy_decay).to(dev)
+    scale = scale_from_json(state['scale'])
+    field = FruitField(config.field, aabb, scale.fruit_diameter_m).to(dev)
+    grid = occupancy_grid(config, aabb, scale.fruit_diameter_m).to(dev)
+    corrections = None
     try:
         field.load_state_dict(state['field'])
         grid.load_state_dict(state['grid'])
+        if state.get('poses') is not None:
+            trained = state['poses']['trained']
+            corrections = PoseRefinement(trained).to(dev)
+            corrections.load_state_dict(state['poses'])
     except RuntimeError as err:
         raise CheckpointError(f'{run.latest_checkpoint}: weights do not match the stored config: {err}') from err
     field.eval()
     for p in field.parameters():
         p.requires_grad_(False)
-    return TrainedScene(field, aabb, config, Path(state['dataset_dir']), int(state['stage']), grid)
+    return TrainedScene(field, aabb, config, Path(state['dataset_dir']), int(state['stage']), grid, scale,
+                        corrections)

@@ -9,6 +9,7 @@ CUDA within a small tolerance: the hash-grid backward uses atomic adds). Nothing
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -29,9 +30,11 @@ from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, p
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 from fruitnerfpp_ros.core.training.pose_refinement import write_refined_poses
 from fruitnerfpp_ros.core.training.run_dir import RunDir
-from fruitnerfpp_ros.core.training.scene_box import build_scene_box
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text
+from fruitnerfpp_ros.core.data.scene_scale import SceneScale
+from fruitnerfpp_ros.core.training.scene_box import measure_scene
 from fruitnerfpp_ros.core.training.stages import STAGE_NAMES, ParamGroup, TrainingStage, build_stages
-from fruitnerfpp_ros.core.training.trained_scene import CHECKPOINT_VERSION
+from fruitnerfpp_ros.core.training.trained_scene import CHECKPOINT_VERSION, SCALE_JSON, scale_from_json
 from fruitnerfpp_ros.errors import TrainingError
 
 __all__ = ['STAGES', 'StageSummary', 'TrainSummary', 'train', 'make_optimizer']
@@ -71,6 +74,7 @@ class TrainSummary:
         stages: completed stages in order.
         stopped: True when ``stop_event`` ended training early (a checkpoint holds the state).
         aabb: [2, 3] scene box, metres.
+        scale: the scene's fruit diameter and fruit region.
     """
 
     run_dir: Path
@@ -78,6 +82,7 @@ class TrainSummary:
     stages: tuple[StageSummary, ...]
     stopped: bool
     aabb: np.ndarray
+    scale: SceneScale
 
     @property
     def completed(self) -> bool:
@@ -117,16 +122,17 @@ class _Progress:
 class _Checkpointer:
     """Writes and restores the whole training state of one run."""
 
-    def __init__(self, run: RunDir, config: TrainConfig, dataset_dir: Path, aabb: np.ndarray, model: FruitNeRFModel,
-                 generator: torch.Generator) -> None:
-        self.run, self.config, self.dataset_dir, self.aabb = run, config, dataset_dir, aabb
+    def __init__(self, run: RunDir, config: TrainConfig, dataset_dir: Path, aabb: np.ndarray, scale: SceneScale,
+                 model: FruitNeRFModel, generator: torch.Generator) -> None:
+        self.run, self.config, self.dataset_dir, self.aabb, self.scale = run, config, dataset_dir, aabb, scale
         self.model, self.generator = model, generator
 
     def save(self, progress: _Progress, optimizer: torch.optim.Optimizer | None) -> None:
         model = self.model
         save_checkpoint({
             'version': CHECKPOINT_VERSION, 'config': config_to_mapping(self.config),
-            'dataset_dir': str(self.dataset_dir), 'aabb': self.aabb, **progress.to_state(),
+            'dataset_dir': str(self.dataset_dir), 'aabb': self.aabb, 'scale': self.scale.to_json(),
+            **progress.to_state(),
             'field': model.field.state_dict(), 'grid': model.grid.state_dict(),
             'poses': None if model.pose_refinement is None else model.pose_refinement.state_dict(),
             'optimizer': None if optimizer is None else optimizer.state_dict(),
@@ -225,13 +231,21 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     if state is not None and Path(state['dataset_dir']).resolve() != Path(dataset_dir).resolve():
         log.warning('resume: dataset %s differs from the one the run started with (%s)', dataset_dir,
                     state['dataset_dir'])
-    aabb = np.asarray(state['aabb']) if state is not None else build_scene_box(dataset, config)
+    if state is not None:
+        aabb, scale = np.asarray(state['aabb']), scale_from_json(state['scale'])
+    else:
+        aabb, scale = measure_scene(dataset, config, dev)
     stages = build_stages(config, dataset)
     run.create()
     save_config(config, run.config_path)
-    model = FruitNeRFModel(config, dataset, aabb, dev)
+    atomic_write_text(run.root / SCALE_JSON, json.dumps({**scale.to_json(), 'aabb': np.round(aabb, 4).tolist()},
+                                                        indent=1))
+    if scale.source == 'default':
+        log.warning('could not measure the fruit size from the masks (%d fruit voxels); using %.3f m: set '
+                    'scale.fruit_diameter_m if that is far off', scale.n_fruit_voxels, scale.fruit_diameter_m)
+    model = FruitNeRFModel(config, dataset, aabb, scale.fruit_diameter_m, dev)
     generator = torch.Generator().manual_seed(config.seed)
-    checkpointer = _Checkpointer(run, config, dataset.dataset_dir, aabb, model, generator)
+    checkpointer = _Checkpointer(run, config, dataset.dataset_dir, aabb, scale, model, generator)
     counters, optimizer_state = _Progress(summaries=[]), None
     if state is not None:
         counters, optimizer_state = checkpointer.restore(state)
@@ -243,7 +257,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
         optimizer_state = None
     for p in model.parameters():
         p.requires_grad_(False)
-    return TrainSummary(run.root, str(dev), tuple(counters.summaries or ()), stopped, aabb)
+    return TrainSummary(run.root, str(dev), tuple(counters.summaries or ()), stopped, aabb, scale)
 
 
 def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDataset, config: TrainConfig, run: RunDir,

@@ -13,9 +13,10 @@ from fruitnerfpp_ros.core.rendering.renderer import RenderSettings, render_rays
 from fruitnerfpp_ros.core.training.losses import prototype_infonce, semantic_loss
 
 SMALL = FieldConfig(
-    geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, base_resolution=4, max_resolution=32),
+    geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, coarsest_cell=2.0, finest_cell=0.25),
     hidden_dim=16, embedding_dim=8, instance_hidden_dim=16,
-    instance_grid=HashGridConfig(num_levels=2, log2_table_size=10, base_resolution=16, max_resolution=512))
+    instance_grid=HashGridConfig(num_levels=2, log2_table_size=10, coarsest_cell=0.5, finest_cell=0.02))
+FRUIT_M = 0.25  # the grids' cells are given in fruit diameters: 2 m box / (0.25 m * 0.25) = 32 cells
 AABB = torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])
 
 
@@ -36,7 +37,7 @@ def _reached(params: list[torch.nn.Parameter]) -> bool:
 
 
 def test_query_contract() -> None:
-    field = FruitField(SMALL, AABB.numpy())
+    field = FruitField(SMALL, AABB.numpy(), FRUIT_M)
     as_protocol: QueryableField = field  # static check of the export contract
     assert as_protocol.embedding_dim == 8
     xyz = torch.cat([torch.rand(10, 3) * 2 - 1, torch.tensor([[5.0, 0.0, 0.0]])])
@@ -49,10 +50,10 @@ def test_query_contract() -> None:
 
 
 def test_a_generator_makes_the_weights_reproducible_without_the_global_seed() -> None:
-    a = FruitField(SMALL, AABB.numpy(), generator=torch.Generator().manual_seed(3))
+    a = FruitField(SMALL, AABB.numpy(), FRUIT_M, generator=torch.Generator().manual_seed(3))
     torch.manual_seed(123)
-    b = FruitField(SMALL, AABB.numpy(), generator=torch.Generator().manual_seed(3))
-    c = FruitField(SMALL, AABB.numpy(), generator=torch.Generator().manual_seed(4))
+    b = FruitField(SMALL, AABB.numpy(), FRUIT_M, generator=torch.Generator().manual_seed(3))
+    c = FruitField(SMALL, AABB.numpy(), FRUIT_M, generator=torch.Generator().manual_seed(4))
     state_a, state_b, state_c = a.state_dict(), b.state_dict(), c.state_dict()
     assert all(torch.equal(state_a[k], state_b[k]) for k in state_a)
     assert not all(torch.equal(state_a[k], state_c[k]) for k in state_a)
@@ -62,7 +63,7 @@ def test_a_generator_makes_the_weights_reproducible_without_the_global_seed() ->
 def test_each_loss_reaches_exactly_its_own_head(loss_name: str) -> None:
     """Photometric -> density/colour only; BCE -> semantic head only; InfoNCE -> instance head only."""
     torch.manual_seed(0)
-    field = FruitField(SMALL, AABB.numpy())
+    field = FruitField(SMALL, AABB.numpy(), FRUIT_M)
     grid = OccupancyGrid(AABB, resolution=8, threshold=0.01, decay=0.95)
     out = render_rays(field, grid, _rays(), RenderSettings(step=0.05, near=0.0), semantic=True, instance=True)
     labels = torch.arange(64) % 4

@@ -10,8 +10,7 @@ from fruitnerfpp_ros.errors import ConfigError
 
 
 def test_dense_level_is_trilinear_interpolation() -> None:
-    enc = HashGridEncoding(HashGridConfig(num_levels=1, features_per_level=1, log2_table_size=12, base_resolution=4,
-                                          max_resolution=4))
+    enc = HashGridEncoding(HashGridConfig(num_levels=1, features_per_level=1, log2_table_size=12), 4, 4)
     assert enc.num_dense == 1
     # vertex value = x + 10 y + 100 z on the 5^3 grid: trilinear interpolation reproduces the linear function
     ijk = torch.stack(torch.meshgrid(*[torch.arange(5)] * 3, indexing='ij'), -1).reshape(-1, 3)
@@ -24,8 +23,7 @@ def test_dense_level_is_trilinear_interpolation() -> None:
 
 
 def test_hashed_levels_index_inside_their_table_and_get_gradients() -> None:
-    enc = HashGridEncoding(HashGridConfig(num_levels=4, features_per_level=2, log2_table_size=11, base_resolution=4,
-                                          max_resolution=64))
+    enc = HashGridEncoding(HashGridConfig(num_levels=4, features_per_level=2, log2_table_size=11), 4, 64)
     assert enc.num_dense == 2  # 5^3 and 11^3 vertices fit 2048 entries; finer levels are hashed
     index, weights = enc.vertex_index(torch.rand(300, 3))
     for level in range(4):
@@ -42,8 +40,7 @@ def test_faces_of_the_unit_cube_index_only_their_own_level(log2_table: int, fine
     """x = 0 and x = 1 exactly, on every level: every vertex index (zero-weight ones too) lies in its level's part
     of the table; a dense last level that fills the table (8^3 = 2^9) used to index past its end at x = 1."""
     table = 2 ** log2_table
-    enc = HashGridEncoding(HashGridConfig(num_levels=3, features_per_level=2, log2_table_size=log2_table,
-                                          base_resolution=2, max_resolution=finest))
+    enc = HashGridEncoding(HashGridConfig(num_levels=3, features_per_level=2, log2_table_size=log2_table), 2, finest)
     corners = torch.stack(torch.meshgrid(*[torch.tensor([0.0, 1.0])] * 3, indexing='ij'), -1).reshape(-1, 3)
     index, weights = enc.vertex_index(corners)
     resolutions = enc.resolutions[:, 0].long()
@@ -58,5 +55,16 @@ def test_faces_of_the_unit_cube_index_only_their_own_level(log2_table: int, fine
 def test_bad_grid_settings_are_config_errors() -> None:
     with pytest.raises(ConfigError, match='log2_table_size'):
         HashGridConfig(log2_table_size=31)
+    with pytest.raises(ConfigError, match='finest_cell'):
+        HashGridConfig(coarsest_cell=0.1, finest_cell=0.5)
     with pytest.raises(ConfigError, match='base_resolution'):
-        HashGridConfig(base_resolution=64, max_resolution=32)
+        HashGridEncoding(HashGridConfig(), 64, 32)
+
+
+def test_resolutions_follow_the_fruit_size_not_the_box() -> None:
+    grid = HashGridConfig(coarsest_cell=4.0, finest_cell=0.25, max_resolution=4096)
+    # the same 7.5 cm fruit in a 2 m and a 6 m box: the same cell size in metres (1.9 cm finest, 30 cm coarsest)
+    small, large = grid.resolutions(2.0, 0.075), grid.resolutions(6.0, 0.075)
+    assert small == (7, 107) and large == (20, 320)
+    assert 2.0 / small[1] == pytest.approx(6.0 / large[1], rel=0.01)
+    assert grid.resolutions(100.0, 0.01)[1] == 4096  # capped

@@ -86,9 +86,9 @@ def test_distortion_loss_equals_the_brute_force_double_sum() -> None:
 def test_rendering_with_and_without_early_termination_is_equal() -> None:
     """Dropping samples behind transmittance 1e-3 changes the rendered colour by less than that bound."""
     torch.manual_seed(0)
-    field = FruitField(FieldConfig(geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, base_resolution=4,
-                                                                max_resolution=32), hidden_dim=16, density_bias=4.0),
-                       AABB.numpy())
+    field = FruitField(FieldConfig(geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, coarsest_cell=1.0,
+                                                                finest_cell=0.125), hidden_dim=16, density_bias=4.0),
+                       AABB.numpy(), 0.25)
     grid = OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
     rays = _rays(32)
     full = render_rays(field, grid, rays, RenderSettings(step=0.01, near=0.0, stop_transmittance=0.0))

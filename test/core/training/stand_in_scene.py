@@ -29,10 +29,11 @@ def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def make_sphere_scene(out_dir: Path, *, views: int = 24, size: int = 64, fruits: int = 12, seed: int = 0,
-                      write_ply: bool = False) -> Path:
+                      write_ply: bool = False, distance: float = 3.2) -> Path:
     """Write a transforms.json dataset of a sphere 'tree' into ``out_dir``; returns ``out_dir``.
 
-    Fruit centres are stored in ``fruit_centres.npy`` (metres).
+    ``distance``: of the cameras from the tree centre (m). Fruit centres are stored in ``fruit_centres.npy`` (metres), every sphere in ``spheres.npz`` (centres, radii,
+    is_fruit), so tests can build the exact field.
     """
     rng = np.random.default_rng(seed)
     out_dir = Path(out_dir)
@@ -56,6 +57,7 @@ def make_sphere_scene(out_dir: Path, *, views: int = 24, size: int = 64, fruits:
     radii = np.concatenate([fr, leaves_r])
     colours = np.clip(np.vstack([fcol, leaves_col]), 0, 1)
     np.save(out_dir / 'fruit_centres.npy', fc)
+    np.savez(out_dir / 'spheres.npz', centres=centres, radii=radii, is_fruit=np.arange(len(centres)) < fruits)
     focal = 0.5 * size / np.tan(np.radians(25.0))
     intr = CameraIntrinsics(focal, focal, size / 2, size / 2, size, size)
     light = np.array([0.4, 0.3, 0.85])
@@ -64,7 +66,7 @@ def make_sphere_scene(out_dir: Path, *, views: int = 24, size: int = 64, fruits:
     for i in range(views):
         az = 2 * np.pi * i / views * 2.0 + rng.uniform(0, 0.2)
         el = np.radians(15 + 45 * (i % 3) / 2)
-        eye = centre + 3.2 * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        eye = centre + distance * np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
         T = _look_at(eye, centre)
         v, u = np.meshgrid(np.arange(size), np.arange(size), indexing='ij')
         d_cam = np.stack([(u + 0.5 - size / 2) / focal, -(v + 0.5 - size / 2) / focal, -np.ones_like(u, float)], -1)

@@ -15,7 +15,7 @@ from fruitnerfpp_ros.core.progress import ProgressEvent
 from fruitnerfpp_ros.core.training import RunDir, train
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
-from fruitnerfpp_ros.core.training.scene_box import build_scene_box
+from fruitnerfpp_ros.core.training.scene_box import measure_scene
 from fruitnerfpp_ros.core.training.stages import build_stages
 from fruitnerfpp_ros.core.training.trainer import _train_step, make_optimizer, _Progress
 from test.core.training.stand_in_scene import make_sphere_scene
@@ -34,7 +34,8 @@ def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
 @pytest.fixture(scope='module')
 def parts(scene: Path) -> tuple:
     dataset = load_dataset(scene, eval_every=REFINED.data.eval_every)
-    model = FruitNeRFModel(REFINED, dataset, build_scene_box(dataset, REFINED), torch.device('cpu'))
+    aabb, scale = measure_scene(dataset, REFINED)
+    model = FruitNeRFModel(REFINED, dataset, aabb, scale.fruit_diameter_m, torch.device('cpu'))
     return dataset, model, build_stages(REFINED, dataset)
 
 

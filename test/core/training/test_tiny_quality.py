@@ -12,9 +12,8 @@ import torch
 
 from fruitnerfpp_ros.core.data.dataset import load_dataset
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField
-from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
-from fruitnerfpp_ros.core.rendering.renderer import RenderSettings
 from fruitnerfpp_ros.core.training import RunDir, load_trained_scene
+from fruitnerfpp_ros.core.training.model import occupancy_grid
 from fruitnerfpp_ros.core.training.metrics import evaluate_views
 from test.accuracy_targets import expect_accuracy
 
@@ -24,11 +23,9 @@ def _untrained(run: Path) -> tuple[float, float]:
     config = scene.config
     dataset = load_dataset(scene.dataset_dir, eval_every=config.data.eval_every)
     torch.manual_seed(0)
-    field = FruitField(config.field, scene.aabb)
-    grid = OccupancyGrid(torch.as_tensor(scene.aabb, dtype=torch.float32),
-                         resolution=config.render.occupancy_resolution, threshold=0.01, decay=0.95)
-    settings = RenderSettings(step=config.render.step_size(float(np.linalg.norm(scene.aabb[1] - scene.aabb[0]))),
-                              near=config.render.near)
+    field = FruitField(config.field, scene.aabb, scene.fruit_diameter_m)
+    grid = occupancy_grid(config, scene.aabb, scene.fruit_diameter_m)
+    settings = scene.render_settings
     views = [int(v) for v in dataset.eval_indices[:1]]  # one view: an untrained field renders every sample
     metrics = evaluate_views(field, grid, dataset, views, settings, config.render.chunk_rays)
     return metrics.psnr, metrics.semantic_iou

@@ -122,7 +122,8 @@ def test_relabelling_instance_ids_changes_nothing(scene: Path, tmp_path: Path) -
     trained = _state(tmp_path / 'a')
     _assert_same(trained, _state(tmp_path / 'b'))
     # ... and the instance stage did something: its weights moved from their initial values and its loss fell
-    untrained = FruitField(config.field, load_trained_scene(tmp_path / 'a', device='cpu').aabb,
+    scene_a = load_trained_scene(tmp_path / 'a', device='cpu')
+    untrained = FruitField(config.field, scene_a.aabb, scene_a.fruit_diameter_m,
                            generator=torch.Generator().manual_seed(config.seed)).state_dict()
     moved = [k for k in trained if k.startswith('instance_') and not torch.equal(trained[k], untrained[k])]
     assert len(moved) == sum(1 for k in trained if k.startswith('instance_'))

@@ -1,0 +1,219 @@
+"""Metric scale of a scene from its masks and poses, before any training: where the fruit is, and how big.
+
+Every quantity of the method that has a length (marching step, grid cells, export voxel, cluster sizes) follows
+from the fruit diameter, not from the size of a box: a 6 m box and a 2 m box around the same tree must sample its
+fruit alike.
+
+How (a visual-hull vote of the fruit masks, vectorised over a voxel grid and all views):
+
+1. Voxel centres over a search box (the region the cameras see) are projected into every view. A voxel *agrees*
+   with a view when it projects onto a fruit pixel (the mask dilated by half the voxel's image footprint). A voxel
+   that at least ``min_views`` views and ``min_fraction`` of the views that see it agree with, and that at least
+   ``min_seen_share`` of the best-seen voxel's views see, is a fruit voxel: a real fruit is on a fruit pixel
+   wherever it is not hidden; empty space only by chance (and space seen by a few views only agrees by chance most
+   easily). A coarse vote over the whole search box finds the fruit region, a finer one inside it the fruit
+   voxels.
+2. Each fruit voxel is on the fruit mask of the views that agree with it; the median distance of a mask's fruit
+   voxels from its camera is that mask's depth, and ``depth * equivalent diameter in pixels / focal length`` its
+   diameter in metres. Leaves hide parts of fruits, so the masks are smaller than the fruit: a high percentile of
+   the per-mask diameters is the estimate.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from fruitnerfpp_ros.core.data.dataset import SceneDataset
+from fruitnerfpp_ros.errors import ConfigError
+
+__all__ = ['ScaleConfig', 'SceneScale', 'estimate_scene_scale']
+
+
+@dataclass(frozen=True)
+class ScaleConfig:
+    """How the fruit size and region are found (or given)."""
+
+    fruit_diameter_m: float | None = None
+    """A known fruit diameter (m) to use as it is; None = measured from the masks and poses."""
+    diameter_range_m: tuple[float, float] = (0.02, 0.25)
+    """A measured diameter is clamped into this range (m); outside it the measurement is not trusted."""
+    default_diameter_m: float = 0.07
+    """Used when nothing can be measured (too few fruit voxels or masks), with a warning in the result."""
+    coarse_resolution: int = 64
+    """Voxels along the longest side of the search box in the first vote."""
+    fine_resolution: int = 96
+    """Voxels along the longest side of the fruit region in the second vote."""
+    min_views: int = 3
+    """A fruit voxel agrees with at least this many views."""
+    min_fraction: float = 0.7
+    """... and with at least this fraction of the views that see it (fine vote; the coarse vote uses half)."""
+    min_seen_share: float = 0.25
+    """... and is seen by at least this share of the views that see the best-seen voxel."""
+    diameter_percentile: float = 75.0
+    """Percentile of the per-mask diameters taken as the fruit diameter (masks are cut by leaves)."""
+    min_mask_pixels: int = 12
+    """Masks with fewer pixels are not measured (their size is mostly quantisation)."""
+
+    def __post_init__(self) -> None:
+        lo, hi = self.diameter_range_m
+        if not 0 < lo < hi:
+            raise ConfigError(f'scale.diameter_range_m must be 0 < min < max, got {self.diameter_range_m}')
+        if self.fruit_diameter_m is not None and not lo <= self.fruit_diameter_m <= hi:
+            raise ConfigError(f'scale.fruit_diameter_m {self.fruit_diameter_m} is outside diameter_range_m '
+                              f'{self.diameter_range_m}')
+        if self.coarse_resolution < 8 or self.fine_resolution < 8 or self.min_views < 1:
+            raise ConfigError('scale: resolutions must be >= 8 and min_views >= 1')
+        if not 0 < self.min_fraction <= 1 or not 0 <= self.diameter_percentile <= 100 \
+                or not 0 <= self.min_seen_share <= 1:
+            raise ConfigError('scale: min_fraction and min_seen_share must be in [0, 1] and diameter_percentile in '
+                              '[0, 100]')
+
+
+class SceneScale(NamedTuple):
+    """The metric scale of one scene.
+
+    Attributes:
+        fruit_diameter_m: the fruit diameter every length of the method follows from.
+        source: ``config`` (given), ``masks`` (measured) or ``default`` (nothing measurable).
+        fruit_region: [2, 3] box (m) around the fruit voxels, or None when none was found.
+        n_fruit_voxels: fruit voxels of the fine vote.
+        n_masks_measured: masks whose diameter entered the estimate.
+    """
+
+    fruit_diameter_m: float
+    source: str
+    fruit_region: np.ndarray | None
+    n_fruit_voxels: int
+    n_masks_measured: int
+
+    def to_json(self) -> dict:
+        return {'fruit_diameter_m': round(self.fruit_diameter_m, 5), 'source': self.source,
+                'fruit_region': None if self.fruit_region is None else np.round(self.fruit_region, 4).tolist(),
+                'n_fruit_voxels': self.n_fruit_voxels, 'n_masks_measured': self.n_masks_measured}
+
+
+class _Votes(NamedTuple):
+    centres: torch.Tensor      # [N, 3] voxel centres
+    seen: torch.Tensor         # [N] views that see each voxel
+    agree: torch.Tensor        # [N] views whose (dilated) fruit mask holds it
+    voxel: float               # voxel size, m
+
+
+def _grid(box: np.ndarray, resolution: int, device: torch.device) -> tuple[torch.Tensor, float]:
+    size = box[1] - box[0]
+    voxel = float(size.max()) / resolution
+    counts = np.maximum(1, np.ceil(size / voxel)).astype(int)
+    axes = [torch.arange(n, device=device, dtype=torch.float32) * voxel + float(box[0][i]) + 0.5 * voxel
+            for i, n in enumerate(counts)]
+    return torch.stack(torch.meshgrid(*axes, indexing='ij'), -1).reshape(-1, 3), voxel
+
+
+def _project(centres: torch.Tensor, T_world_camera: torch.Tensor, K: torch.Tensor, width: int, height: int
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(pixel column, row, depth along the optical axis, inside the image and in front) of world points."""
+    R, c = T_world_camera[:3, :3], T_world_camera[:3, 3]
+    cam = (centres - c) @ R                                  # OpenGL camera axes: the camera looks along -z
+    depth = -cam[:, 2]
+    safe = torch.where(depth > 1e-6, depth, torch.ones_like(depth))
+    u = K[0] * cam[:, 0] / safe + K[2]
+    v = -K[1] * cam[:, 1] / safe + K[3]
+    inside = (depth > 1e-6) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    return u.long().clamp(0, width - 1), v.long().clamp(0, height - 1), depth, inside
+
+
+def _vote(dataset: SceneDataset, views: list[int], box: np.ndarray, resolution: int, device: torch.device
+          ) -> _Votes:
+    centres, voxel = _grid(box, resolution, device)
+    seen = torch.zeros(len(centres), dtype=torch.int32, device=device)
+    agree = torch.zeros_like(seen)
+    box_centre = torch.as_tensor(0.5 * (box[0] + box[1]), dtype=torch.float32, device=device)
+    for view in views:
+        T = dataset.T_world_camera[view].to(device)
+        K = dataset.intrinsics[view].to(device)
+        # dilate the fruit mask by half the voxel's footprint at the box centre's depth (at least one pixel)
+        distance = float(torch.linalg.norm(T[:3, 3] - box_centre))
+        radius = max(1, int(math.ceil(0.5 * voxel * float(K[0]) / max(distance, 1e-3))))
+        fruit = dataset.semantic_masks[view].to(device, torch.float32)[None, None]
+        dilated = F.max_pool2d(fruit, 2 * radius + 1, stride=1, padding=radius)[0, 0] > 0
+        u, v, _, inside = _project(centres, T, K, dataset.width, dataset.height)
+        if dataset.valid_masks is not None:
+            inside &= dataset.valid_masks[view].to(device)[v, u]
+        seen += inside.to(torch.int32)
+        agree += (inside & dilated[v, u]).to(torch.int32)
+    return _Votes(centres, seen, agree, voxel)
+
+
+def _fruit_voxels(votes: _Votes, min_views: int, min_fraction: float, min_seen_share: float) -> torch.Tensor:
+    seen = votes.seen.float()
+    return ((votes.agree >= min_views) & (votes.agree.float() >= min_fraction * seen.clamp_min(1.0))
+            & (seen >= min_seen_share * float(seen.max())))
+
+
+def _region(points: torch.Tensor, pad: float) -> np.ndarray:
+    """Box of the 2nd-98th percentiles of ``points`` grown by ``pad`` (stray agreeing voxels do not stretch it)."""
+    p = points.double().cpu().numpy()
+    lo, hi = np.percentile(p, 2.0, axis=0), np.percentile(p, 98.0, axis=0)
+    return np.stack([lo - pad, hi + pad])
+
+
+def _mask_diameters(dataset: SceneDataset, views: list[int], fruit: torch.Tensor, min_pixels: int) -> np.ndarray:
+    """Metric diameter of every instance mask holding fruit voxels: its median voxel depth times its equivalent
+    diameter in pixels over the focal length."""
+    out = []
+    for view in views:
+        T = dataset.T_world_camera[view].to(fruit.device)
+        K = dataset.intrinsics[view].to(fruit.device)
+        u, v, depth, inside = _project(fruit, T, K, dataset.width, dataset.height)
+        ids = dataset.instance_masks[view].to(fruit.device).long()
+        hit = ids[v, u] * inside.long()
+        if not bool((hit > 0).any()):
+            continue
+        labels, inverse = torch.unique(hit[hit > 0], return_inverse=True)
+        depths = depth[hit > 0]
+        order = torch.argsort(inverse * 1e6 + depths.double())  # per mask, voxels by depth
+        counts = torch.bincount(inverse, minlength=len(labels))
+        starts = torch.cumsum(counts, 0) - counts
+        median_depth = depths[order][starts + counts // 2]
+        area = torch.bincount(ids.reshape(-1), minlength=int(labels.max()) + 1)[labels].double()
+        focal = math.sqrt(float(K[0]) * float(K[1]))
+        diameter = 2.0 * torch.sqrt(area / math.pi) * median_depth.double() / focal
+        out.append(diameter[area >= min_pixels].cpu().numpy())
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: ScaleConfig = ScaleConfig(), *,
+                         device: torch.device | str = 'cpu') -> SceneScale:
+    """The fruit diameter and fruit region of ``dataset`` (its training views), searched within ``search_box``.
+
+    Args:
+        dataset: the loaded dataset (semantic and instance masks, poses, intrinsics).
+        search_box: [2, 3] region to search (m), e.g. where the cameras' views overlap.
+        config: thresholds, or a given diameter.
+        device: where the vote runs (a GPU makes 300 views of a fine grid take a second).
+    """
+    device = torch.device(device)
+    views = [int(v) for v in dataset.train_indices]
+    coarse = _vote(dataset, views, np.asarray(search_box, np.float64), config.coarse_resolution, device)
+    candidates = _fruit_voxels(coarse, config.min_views, 0.5 * config.min_fraction, config.min_seen_share)
+    region, n_fruit, diameters = None, 0, np.zeros(0)
+    if int(candidates.sum()) >= 4:
+        fine_box = _region(coarse.centres[candidates], coarse.voxel)
+        fine = _vote(dataset, views, fine_box, config.fine_resolution, device)
+        fruit = _fruit_voxels(fine, config.min_views, config.min_fraction, config.min_seen_share)
+        n_fruit = int(fruit.sum())
+        if n_fruit >= 4:
+            region = _region(fine.centres[fruit], fine.voxel)
+            diameters = _mask_diameters(dataset, views, fine.centres[fruit], config.min_mask_pixels)
+    lo, hi = config.diameter_range_m
+    if config.fruit_diameter_m is not None:
+        return SceneScale(float(config.fruit_diameter_m), 'config', region, n_fruit, 0)
+    if len(diameters) < 3:
+        return SceneScale(float(config.default_diameter_m), 'default', region, n_fruit, len(diameters))
+    measured = float(np.clip(np.percentile(diameters, config.diameter_percentile), lo, hi))
+    return SceneScale(measured, 'masks', region, n_fruit, len(diameters))

@@ -1,0 +1,57 @@
+"""Metric scale from masks and poses: the fruit diameter and region of the stand-in and the synthetic scenes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fruitnerfpp_ros.core.data.bounds import aabb_from_cameras
+from fruitnerfpp_ros.core.data.dataset import load_dataset
+from fruitnerfpp_ros.core.data.scene_scale import ScaleConfig, estimate_scene_scale
+from fruitnerfpp_ros.errors import ConfigError
+from test.core.training.stand_in_scene import make_sphere_scene
+
+
+def _search_box(dataset) -> np.ndarray:  # noqa: ANN001
+    return aabb_from_cameras(dataset.T_world_camera.numpy(), dataset.intrinsics.numpy(), dataset.width,
+                             dataset.height, min_view_fraction=0.1)
+
+
+def test_the_synthetic_test_tree_measures_its_apples(tiny_apple_dataset: Path) -> None:
+    dataset = load_dataset(tiny_apple_dataset, eval_every=8)
+    scale = estimate_scene_scale(dataset, _search_box(dataset))
+    fruits = json.loads((tiny_apple_dataset / 'gt_fruits.json').read_text())['fruits']
+    truth = float(np.median([f['diameter'] for f in fruits]))
+    assert scale.source == 'masks' and scale.n_masks_measured > 50
+    assert abs(scale.fruit_diameter_m - truth) < 0.2 * truth
+    centres = np.array([f['center'] for f in fruits])
+    region = scale.fruit_region
+    assert np.all((centres >= region[0] - 0.05) & (centres <= region[1] + 0.05))
+    assert np.all(region[1] - region[0] < 1.5 * (centres.max(0) - centres.min(0)) + 0.3)  # not the camera box
+
+
+def test_the_same_spheres_measure_alike_however_far_the_cameras_stand(tmp_path: Path) -> None:
+    near = make_sphere_scene(tmp_path / 'near', views=20, size=64, fruits=8)
+    far = make_sphere_scene(tmp_path / 'far', views=20, size=128, fruits=8, distance=6.4)
+    measured = []
+    for scene in (near, far):
+        dataset = load_dataset(scene, eval_every=0)
+        measured.append(estimate_scene_scale(dataset, _search_box(dataset)).fruit_diameter_m)
+    radii = np.load(near / 'spheres.npz')['radii'][:8]
+    assert measured[0] == pytest.approx(measured[1], rel=0.2)
+    assert 1.4 * radii.mean() < measured[0] < 2.6 * radii.mean()
+
+
+def test_a_given_diameter_is_used_and_nothing_measurable_falls_back(tmp_path: Path) -> None:
+    scene = make_sphere_scene(tmp_path / 's', views=6, size=32, fruits=4)
+    dataset = load_dataset(scene, eval_every=0)
+    given = estimate_scene_scale(dataset, _search_box(dataset), ScaleConfig(fruit_diameter_m=0.09))
+    assert given.fruit_diameter_m == 0.09 and given.source == 'config'
+    empty = dataset.__class__(**{**dataset.__dict__, 'semantic_masks': dataset.semantic_masks & False})
+    fallback = estimate_scene_scale(empty, _search_box(dataset), ScaleConfig(default_diameter_m=0.06))
+    assert fallback.source == 'default' and fallback.fruit_diameter_m == 0.06 and fallback.fruit_region is None
+    with pytest.raises(ConfigError, match='diameter_range_m'):
+        ScaleConfig(fruit_diameter_m=0.5)
