@@ -7,6 +7,7 @@ export threshold kept) and, when the dataset has ``gt_fruits.json``, ``eval.json
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import threading
 from concurrent.futures import Executor
@@ -25,6 +26,7 @@ from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth, load
 from fruitnerfpp_ros.core.evaluation.metrics import EvalMetrics, evaluate_counts
 from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.exporter import ExportReport, ExportResult, export_fruit_cloud
+from fruitnerfpp_ros.core.export.surface import SurfaceExportReport
 from fruitnerfpp_ros.core.export.npz_io import read_cloud, write_npz
 from fruitnerfpp_ros.core.export.ply import write_ply
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
@@ -32,8 +34,8 @@ from fruitnerfpp_ros.core.progress import PipelineStage, ProgressCallback, Progr
 from fruitnerfpp_ros.errors import ExportError
 
 __all__ = ['PipelineResult', 'PipelineOutputs', 'run_pipeline', 'export_run', 'count_run', 'count_cloud',
-           'evaluate_run', 'counts_to_json', 'write_counts', 'COUNTS_FORMAT_VERSION', 'CLOUD_PLY', 'CLOUD_NPZ',
-           'COUNTS_JSON', 'EVAL_JSON', 'EXPORT_JSON', 'GT_JSON']
+           'evaluate_run', 'training_views', 'counts_to_json', 'write_counts', 'COUNTS_FORMAT_VERSION', 'CLOUD_PLY',
+           'CLOUD_NPZ', 'COUNTS_JSON', 'EVAL_JSON', 'EXPORT_JSON', 'GT_JSON']
 
 COUNTS_FORMAT_VERSION = 1
 CLOUD_PLY, CLOUD_NPZ, COUNTS_JSON, EVAL_JSON, EXPORT_JSON = 'cloud.ply', 'cloud.npz', 'counts.json', 'eval.json', \
@@ -69,7 +71,7 @@ class PipelineResult:
 
     run_dir: Path
     cloud: FruitPointCloud
-    export_report: ExportReport | None
+    export_report: ExportReport | SurfaceExportReport | None
     count: CountResult
     eval: EvalMetrics | None
     paths: PipelineOutputs
@@ -151,23 +153,38 @@ def _tqdm_progress(*, skip: PipelineStage = PipelineStage.TRAIN) -> Callable[[Pr
 
 def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *, device: str = 'auto',
                out: str | Path | None = None, progress: ProgressCallback | None = None,
-               stop_event: threading.Event | None = None, write_cloud: bool = True) -> ExportResult:
+               stop_event: threading.Event | None = None, write_cloud: bool = True,
+               dataset_dir: str | Path | None = None) -> ExportResult:
     """Export the fruit point cloud of a trained run to ``out`` (default ``RUN_DIR/cloud.ply``) plus ``.npz``.
 
     Also writes ``export.json`` (the export report) next to the cloud. ``write_cloud=False`` leaves the cloud
-    files to the caller (:func:`run_pipeline` writes them once, with the cluster ids).
+    files to the caller (:func:`run_pipeline` writes them once, with the cluster ids). The surface export renders
+    the training views of ``dataset_dir`` (default: the dataset the run was trained on).
 
     Raises:
         CheckpointError: ``run_dir`` is not a trained run.
+        DatasetError: the surface export cannot read the run's dataset.
         ExportError: the export failed (see the message for thresholds).
     """
+    from fruitnerfpp_ros.core.data.dataset import load_dataset
+    from fruitnerfpp_ros.core.export.surface import export_surface_cloud
     from fruitnerfpp_ros.core.training import load_trained_scene
 
     run_dir = Path(run_dir)
     scene = load_trained_scene(run_dir, device=device)
-    result = export_fruit_cloud(scene.field, scene.aabb, export_config or ExportConfig(),
-                                surface_density=scene.surface_density, march_step=scene.march_step,
-                                progress=progress, stop_event=stop_event)
+    config = export_config or ExportConfig()
+    diameter = scene.fruit_diameter_m
+    if config.method == 'surface':
+        dataset = load_dataset(dataset_dir or scene.dataset_dir, eval_every=scene.config.data.eval_every)
+        cloud, report = export_surface_cloud(scene.field, scene.occupancy, scene.render_settings, dataset,
+                                             scene.poses(dataset.T_world_camera), diameter, config,
+                                             progress=progress, stop_event=stop_event)
+        result = ExportResult(cloud, report)
+    else:
+        result = export_fruit_cloud(scene.field, scene.aabb, config, surface_density=scene.surface_density,
+                                    default_voxel_m=config.voxel_fruit_fraction * diameter, progress=progress,
+                                    stop_event=stop_event)
+    result = ExportResult(dataclasses.replace(result.cloud, fruit_diameter_m=diameter), result.report)
     ply = Path(out) if out is not None else run_dir / CLOUD_PLY
     if write_cloud:
         write_ply(ply, result.cloud)
@@ -226,19 +243,35 @@ def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *,
     return count
 
 
+def training_views(dataset_dir: str | Path, eval_every: int, gt_json: str | Path) -> np.ndarray | None:
+    """The ground truth's view indices of the frames a run of ``dataset_dir`` trained on (held-out frames left
+    out), matched by stamp when the ground truth lists its views' stamps; None when they cannot be matched."""
+    from fruitnerfpp_ros.core.data.dataset import split_indices
+    from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+
+    frames = read_transforms(dataset_dir).frames
+    train, _ = split_indices(len(frames), eval_every)
+    stamps = [frames[i].stamp_ns for i in train]
+    gt = load_ground_truth(gt_json)
+    if gt.view_stamps_ns is None or any(s is None for s in stamps):
+        return None
+    return gt.views_at_stamps(stamps)
+
+
 def evaluate_run(counts_json: str | Path, gt_json: str | Path, *, out: str | Path | None = None,
                  tolerance: float = 1.0, exclude_unseen: bool = True,
-                 centers: np.ndarray | None = None) -> EvalMetrics:
+                 centers: np.ndarray | None = None, train_views: np.ndarray | None = None) -> EvalMetrics:
     """Score a ``counts.json`` against ``gt_fruits.json``; writes ``out`` (eval.json) when given.
 
     ``centers``: the count's fruit centres [K, 3] when the caller holds them (then ``counts_json`` is only named
-    in eval.json, not read back).
+    in eval.json, not read back). ``train_views``: the ground truth's views the run trained on (see
+    :func:`training_views`); with ``exclude_unseen``, fruits none of them saw are left out of recall.
 
     Raises:
         EvaluationError: missing / malformed files.
     """
     pred = load_predicted_centers(counts_json) if centers is None else np.asarray(centers, np.float64).reshape(-1, 3)
-    gt = load_ground_truth(gt_json)
+    gt = load_ground_truth(gt_json, train_views=train_views)
     metrics = evaluate_counts(pred, gt, tolerance=tolerance, exclude_unseen=exclude_unseen)
     if out is not None:
         _write_json(Path(out), {**metrics.to_json(), 'counts': str(counts_json), 'ground_truth': str(gt_json)})
@@ -294,8 +327,13 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
     eval_path = None
     gt_path = dataset_dir / GT_JSON
     if gt_path.is_file():
+        from fruitnerfpp_ros.core.config_io import load_config
+        from fruitnerfpp_ros.core.training import RunDir, TrainConfig
+
+        eval_every = load_config(TrainConfig, RunDir(run_dir).config_path).data.eval_every
         eval_path = run_dir / EVAL_JSON
-        metrics = evaluate_run(counts_path, gt_path, out=eval_path, centers=count.centers())
+        metrics = evaluate_run(counts_path, gt_path, out=eval_path, centers=count.centers(),
+                               train_views=training_views(dataset_dir, eval_every, gt_path))
     paths = PipelineOutputs(run_dir / CLOUD_PLY, run_dir / CLOUD_NPZ, counts_path, run_dir / EXPORT_JSON, eval_path)
     return PipelineResult(run_dir, cloud, exported.report, count, metrics, paths,
                           stopped=exported.report.stopped, train_summary=summary)

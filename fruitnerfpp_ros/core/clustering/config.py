@@ -61,6 +61,19 @@ class ClusterConfig:
     into small fragments that pass the size limits (tiny scene at 1.2 cm voxels: F1 0.64 -> 0.83). None: the sizes
     are used as given (also when the cloud's spacing is unknown)."""
 
+    fruit_share_cluster: float | None = 0.3
+    """With a cloud that knows its fruit diameter D: ``min_cluster_size`` = this x the points a fruit shows (the
+    median number of cloud points within D / 2 of a point, measured on the cloud), which follows the image
+    resolution, the views and the export voxel without a reference. None: the spacing-scaled value."""
+
+    fruit_share_keep: float | None = 0.35
+    """... and ``min_fruit_points`` = this x the points a fruit shows. None: the spacing-scaled value."""
+
+    reference_fruit_diameter_m: float | None = 0.075
+    """Fruit diameter (m) for which ``lambda_e``, ``overlap_m``, ``merge_centers_m`` and (with
+    ``reference_spacing_m``) the cluster sizes are given: a cloud that knows its scene's fruit diameter
+    (``FruitPointCloud.fruit_diameter_m``) is clustered with them scaled to it (:meth:`for_cloud`). None: as given."""
+
     merge_centers_m: float = 0.0
     """Clusters whose median centres are closer than this (m) are merged into one fruit (a fruit split in two by
     a noisy embedding has half-centres about 0.4 diameters apart; two real fruits cannot be closer than ~0.8
@@ -117,6 +130,10 @@ class ClusterConfig:
             (self.min_cluster_size >= 2, 'min_cluster_size must be >= 2'),
             (self.min_fruit_points >= 1, 'min_fruit_points must be >= 1'),
             (self.reference_spacing_m is None or self.reference_spacing_m > 0, 'reference_spacing_m must be > 0'),
+            (self.reference_fruit_diameter_m is None or self.reference_fruit_diameter_m > 0,
+             'reference_fruit_diameter_m must be > 0'),
+            (all(v is None or 0 < v <= 1 for v in (self.fruit_share_cluster, self.fruit_share_keep)),
+             'fruit_share_cluster and fruit_share_keep must be in (0, 1] or null'),
             (self.partitions >= 0, 'partitions must be >= 0'),
             (self.points_per_partition >= 100, 'points_per_partition must be >= 100'),
             (self.overlap_m >= 0, 'overlap_m must be >= 0'),
@@ -132,11 +149,33 @@ class ClusterConfig:
             if not ok:
                 raise ConfigError(f'ClusterConfig: {message}')
 
-    def for_spacing(self, spacing_m: float | None) -> 'ClusterConfig':
-        """This config with the cluster sizes scaled to a cloud of point spacing ``spacing_m`` (see
-        ``reference_spacing_m``); unchanged when either is None."""
+    def for_cloud(self, spacing_m: float | None, fruit_diameter_m: float | None = None,
+                  fruit_points: float | None = None) -> 'ClusterConfig':
+        """This config scaled to a cloud of point spacing ``spacing_m`` and fruit diameter ``fruit_diameter_m``.
+
+        Lengths (``lambda_e`` inversely, ``overlap_m``, ``merge_centers_m``) scale with the fruit diameter over
+        ``reference_fruit_diameter_m``. Cluster sizes: the ``fruit_share_*`` of ``fruit_points`` (the points a fruit
+        shows, measured on the cloud) when given, else the points a fruit holds, (fruit diameter / spacing)^2, over
+        the reference's. Unknown values (None) leave their part unscaled.
+        """
+        out = self
+        ratio = 1.0
+        if fruit_diameter_m is not None and fruit_diameter_m > 0 and self.reference_fruit_diameter_m is not None:
+            ratio = fruit_diameter_m / self.reference_fruit_diameter_m
+            out = dataclasses.replace(out, lambda_e=self.lambda_e / ratio, overlap_m=self.overlap_m * ratio,
+                                      merge_centers_m=self.merge_centers_m * ratio)
+        if fruit_points is not None and fruit_points > 0:
+            if self.fruit_share_cluster is not None:
+                out = dataclasses.replace(out, min_cluster_size=max(2, round(self.fruit_share_cluster * fruit_points)))
+            if self.fruit_share_keep is not None:
+                out = dataclasses.replace(out, min_fruit_points=max(1, round(self.fruit_share_keep * fruit_points)))
+            if self.fruit_share_cluster is not None and self.fruit_share_keep is not None:
+                return out
         if spacing_m is None or self.reference_spacing_m is None or not spacing_m > 0:
-            return self
-        scale = (self.reference_spacing_m / spacing_m) ** 2
-        return dataclasses.replace(self, min_cluster_size=max(2, round(self.min_cluster_size * scale)),
-                                   min_fruit_points=max(1, round(self.min_fruit_points * scale)))
+            return out
+        scale = (ratio * self.reference_spacing_m / spacing_m) ** 2
+        if fruit_points is None or self.fruit_share_cluster is None:
+            out = dataclasses.replace(out, min_cluster_size=max(2, round(self.min_cluster_size * scale)))
+        if fruit_points is None or self.fruit_share_keep is None:
+            out = dataclasses.replace(out, min_fruit_points=max(1, round(self.min_fruit_points * scale)))
+        return out

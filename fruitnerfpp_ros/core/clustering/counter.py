@@ -25,7 +25,7 @@ from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ClusteringError
 
-__all__ = ['count_fruits', 'fruits_from_labels']
+__all__ = ['count_fruits', 'points_per_fruit', 'fruits_from_labels']
 
 
 def _validate(cloud: FruitPointCloud) -> None:
@@ -99,14 +99,25 @@ def _cluster_partitions(jobs: list[tuple[np.ndarray, np.ndarray]], config: Clust
     return results, False
 
 
+def points_per_fruit(xyz: np.ndarray, fruit_diameter_m: float, *, sample: int = 4000, seed: int = 0) -> float:
+    """The points a fruit shows in a cloud: the median number of points within half a fruit diameter of a point
+    (of a random sample of ``sample`` points)."""
+    from scipy.spatial import cKDTree
+    xyz = np.asarray(xyz, np.float64)
+    rng = np.random.default_rng(seed)
+    probe = xyz if len(xyz) <= sample else xyz[rng.choice(len(xyz), sample, replace=False)]
+    counts = cKDTree(xyz).query_ball_point(probe, 0.5 * fruit_diameter_m, return_length=True)
+    return float(np.median(counts))
+
+
 def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *, executor: Executor | None = None,
                  progress: ProgressCallback | None = None) -> CountResult:
     """Cluster a fruit point cloud into fruits with the paper's multi-modal metric.
 
     Args:
         cloud: the exported fruit points (xyz in m, unit embeddings).
-        config: clustering settings (defaults when None); its cluster sizes are scaled to ``cloud.spacing_m`` (the
-            export voxel) when known (:meth:`ClusterConfig.for_spacing`).
+        config: clustering settings (defaults when None); scaled to ``cloud.spacing_m`` (the export voxel) and
+            ``cloud.fruit_diameter_m`` when known (:meth:`ClusterConfig.for_cloud`).
         executor: where partitions run when there are several and at least ``config.parallel_min_points`` points
             are clustered (e.g. :func:`~fruitnerfpp_ros.core.clustering.workers.partition_pool`); the caller owns
             and shuts it down. None: every partition runs in this process (KD-tree queries on ``config.n_jobs``
@@ -121,11 +132,17 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         ClusteringError: on a malformed cloud (NaN, no embedding).
     """
     _validate(cloud)
-    config = (config or ClusterConfig()).for_spacing(cloud.spacing_m)
+    base = config or ClusterConfig()
+    fruit_points = None
+    if cloud.fruit_diameter_m is not None and len(cloud) >= 2:
+        fruit_points = points_per_fruit(cloud.xyz, cloud.fruit_diameter_m, seed=base.seed)
+    config = base.for_cloud(cloud.spacing_m, cloud.fruit_diameter_m, fruit_points)
     progress = progress or ignore_progress
     n = len(cloud)
     stats: dict[str, Any] = {'n_points': n, 'metric': config.metric, 'lambda_c': config.lambda_c,
                              'lambda_e': config.lambda_e, 'point_spacing_m': cloud.spacing_m,
+                             'fruit_diameter_m': cloud.fruit_diameter_m, 'overlap_m': config.overlap_m,
+                             'points_per_fruit': fruit_points, 'min_cluster_size': config.min_cluster_size,
                              'min_samples': config.min_samples, 'min_fruit_points': config.min_fruit_points}
     if n == 0:
         stats['note'] = 'empty fruit point cloud: nothing to count'

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 from fruitnerfpp_ros.errors import ConfigError
 
@@ -13,14 +14,43 @@ __all__ = ['ExportConfig']
 class ExportConfig:
     """How the trained field is sampled into a fruit point cloud.
 
-    A uniform grid of cell centres covers the scene box; a sample is kept when its density and its fruit
-    probability both pass their thresholds.
+    ``surface`` (default, core/export/surface.py): the fruit pixels of the training views are rendered; where a
+    ray terminates on fruit is a surface point; points are merged on voxels of ``voxel_fruit_fraction`` fruit
+    diameters and kept where ``min_views`` views agree. ``grid``: a uniform grid of cell centres covers the scene box;
+    a sample is kept when its density and its fruit probability both pass their thresholds.
     """
 
+    method: Literal['surface', 'grid'] = 'surface'
+    """``surface``: fruit surfaces seen from the training views; ``grid``: the volume on a uniform grid."""
+
+    voxel_fruit_fraction: float = 0.125
+    """Export voxel in fruit diameters (surface merge voxel; also the grid spacing when ``voxel_size_m`` and
+    ``grid_points`` are not set)."""
+
+    min_opacity: float = 0.5
+    """Surface: a fruit ray gives a point only when its rendered opacity reaches this (no point from fog)."""
+
+    surface_fruit_threshold: float = 0.5
+    """Surface: ... and when the fruit probability it renders (normalised by its opacity) reaches this."""
+
+    min_views: int = 2
+    """Surface: a voxel is kept when points of at least this many views fall in it."""
+
+    min_mask_agreement: float = 0.4
+    """Surface: ... and when it lies on a fruit pixel in at least this fraction of the training views it projects
+    into (fog and leaves in front of a fruit drift off the other views' fruit masks)."""
+
+    mask_dilation_px: int = 1
+    """Surface: fruit masks are grown by this many pixels for that test (poses and masks are not exact)."""
+
+    max_rays: int = 4_000_000
+    """Surface: at most this many fruit pixels are rendered (a seeded subsample beyond)."""
+
+    chunk_rays: int = 8192
+    """Surface: rays rendered per batch (bounds memory)."""
+
     voxel_size_m: float | None = None
-    """Grid spacing in metres. None: ``grid_points`` when set, else the trained scene's ray-marching step (the
-    finest spacing at which rendering constrained the density; about 1.4 cm on the 300-view apple tree with the
-    default preset, 2 cm on the tiny scene), else a grid of 8M samples."""
+    """Grid: spacing in metres. None: ``grid_points`` when set, else ``voxel_fruit_fraction`` fruit diameters."""
 
     grid_points: int | None = None
     """Target number of grid samples over the box (the voxel size follows from the box volume); used when
@@ -80,3 +110,11 @@ class ExportConfig:
             raise ConfigError('ExportConfig: aabb needs 6 numbers: xmin ymin zmin xmax ymax zmax')
         if self.max_points < 1:
             raise ConfigError('ExportConfig: max_points must be >= 1')
+        if not 0 < self.voxel_fruit_fraction <= 2:
+            raise ConfigError('ExportConfig: voxel_fruit_fraction must be in (0, 2]')
+        if not (0 <= self.min_opacity <= 1 and 0 <= self.surface_fruit_threshold <= 1):
+            raise ConfigError('ExportConfig: min_opacity and surface_fruit_threshold must be in [0, 1]')
+        if not 0 <= self.min_mask_agreement <= 1 or self.mask_dilation_px < 0:
+            raise ConfigError('ExportConfig: min_mask_agreement must be in [0, 1] and mask_dilation_px >= 0')
+        if self.min_views < 1 or self.max_rays < 1 or self.chunk_rays < 1:
+            raise ConfigError('ExportConfig: min_views, max_rays and chunk_rays must be >= 1')

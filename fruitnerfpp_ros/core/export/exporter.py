@@ -75,7 +75,7 @@ class ExportReport:
         """One line saying how many samples each threshold kept (and, for an empty cloud, why it is empty)."""
         coarse = (f'coarse pass: {self.n_coarse_dense}/{self.n_coarse} samples dense, {self.n_coarse_refined} '
                   'cells refined; ' if self.n_coarse else '')
-        line = (f'export: {self.n_grid} grid samples (voxel {self.voxel_size_m * 1000:.1f} mm; {coarse}'
+        line = (f'grid export: {self.n_grid} grid samples (voxel {self.voxel_size_m * 1000:.1f} mm; {coarse}'
                 f'{self.n_evaluated} evaluated) -> {self.n_dense} with density >= {self.density_threshold:.3g}/m '
                 f'-> {self.n_kept} also with fruit probability >= {self.fruit_threshold:.2f} ({self.n_fruit} pass '
                 'the fruit threshold alone)')
@@ -111,12 +111,12 @@ DEFAULT_GRID_POINTS = 8_000_000
 """Grid size when neither a voxel size, a grid size nor the scene's marching step is known."""
 
 
-def export_grid(aabb: np.ndarray, config: ExportConfig, march_step: float | None = None,
+def export_grid(aabb: np.ndarray, config: ExportConfig, default_voxel_m: float | None = None,
                 ) -> tuple[np.ndarray, float, tuple[int, int, int]]:
     """The sampled box [2, 3] (crop applied), voxel size (m) and samples per axis.
 
-    The voxel size is ``config.voxel_size_m``, else follows from ``config.grid_points``, else is ``march_step``
-    (the trained scene's ray-marching step), else follows from :data:`DEFAULT_GRID_POINTS`.
+    The voxel size is ``config.voxel_size_m``, else follows from ``config.grid_points``, else is
+    ``default_voxel_m`` (a fraction of the scene's fruit diameter), else follows from :data:`DEFAULT_GRID_POINTS`.
 
     Raises:
         ExportError: when the box (or its intersection with the crop box) is empty or not finite, or the grid
@@ -132,10 +132,10 @@ def export_grid(aabb: np.ndarray, config: ExportConfig, march_step: float | None
                           f'crop {config.aabb})')
     if config.voxel_size_m is not None:
         voxel = float(config.voxel_size_m)
-    elif config.grid_points is not None or march_step is None:
+    elif config.grid_points is not None or default_voxel_m is None:
         voxel = float((np.prod(size) / (config.grid_points or DEFAULT_GRID_POINTS)) ** (1.0 / 3.0))
     else:
-        voxel = float(march_step)
+        voxel = float(default_voxel_m)
     shape = tuple(int(v) for v in np.maximum(1, np.round(size / voxel)).astype(np.int64))
     if int(np.prod(shape)) > config.max_grid_points:
         raise ExportError(f'export grid {shape} at voxel {voxel * 1000:.1f} mm exceeds max_grid_points '
@@ -182,7 +182,7 @@ def _index_batches(shape: tuple[int, int, int], batch: int, device: torch.device
 
 @torch.no_grad()
 def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportConfig | None = None, *,
-                       surface_density: float | None = None, march_step: float | None = None,
+                       surface_density: float | None = None, default_voxel_m: float | None = None,
                        progress: ProgressCallback | None = None,
                        stop_event: threading.Event | None = None) -> ExportResult:
     """Sample ``field`` on a uniform grid over ``aabb`` and keep the dense fruit points.
@@ -192,7 +192,7 @@ def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportCo
         aabb: [2, 3] scene box (m).
         config: grid and thresholds (defaults when None).
         surface_density: the scene's surface density (1/m) used when ``config.density_threshold`` is None.
-        march_step: the scene's ray-marching step (m): the default voxel size (see :func:`export_grid`).
+        default_voxel_m: the voxel size when the config sets none (see :func:`export_grid`).
         progress: receives ``export:coarse`` (once) and ``export`` phase events.
         stop_event: when set, the export stops early and returns the points so far (``report.stopped``).
 
@@ -210,7 +210,7 @@ def export_fruit_cloud(field: QueryableField, aabb: np.ndarray, config: ExportCo
         density_threshold = float(surface_density) * config.density_scale
     else:
         raise ExportError('export needs ExportConfig.density_threshold or the scene surface density; neither given')
-    box, voxel, shape = export_grid(aabb, config, march_step)
+    box, voxel, shape = export_grid(aabb, config, default_voxel_m)
     device = _field_device(field)
     lo = torch.as_tensor(box[0], dtype=torch.float32, device=device)
     dim = int(field.embedding_dim)

@@ -14,10 +14,12 @@ from fruitnerfpp_ros.core.data.ply_io import PlyError, read_ply_vertices_and_com
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.errors import ExportError
 
-__all__ = ['write_ply', 'read_ply', 'SPACING_COMMENT']
+__all__ = ['write_ply', 'read_ply', 'SPACING_COMMENT', 'FRUIT_DIAMETER_COMMENT']
 
 SPACING_COMMENT = 'spacing_m'
 """Header comment ``spacing_m <metres>``: the export voxel of the cloud (see ``FruitPointCloud.spacing_m``)."""
+FRUIT_DIAMETER_COMMENT = 'fruit_diameter_m'
+"""Header comment ``fruit_diameter_m <metres>``: the scene's fruit diameter (``FruitPointCloud.fruit_diameter_m``)."""
 
 
 def _vertex_dtype(dim: int, with_labels: bool) -> np.dtype:
@@ -47,6 +49,8 @@ def write_ply(path: str | Path, cloud: FruitPointCloud, labels: np.ndarray | Non
     comments = ['fruitnerfpp_ros fruit point cloud', f'embedding_dim {cloud.embedding_dim}']
     if cloud.spacing_m is not None:
         comments.append(f'{SPACING_COMMENT} {cloud.spacing_m!r}')
+    if cloud.fruit_diameter_m is not None:
+        comments.append(f'{FRUIT_DIAMETER_COMMENT} {cloud.fruit_diameter_m!r}')
     write_ply_vertices(path, vertices, comments=comments)
     return path
 
@@ -79,13 +83,14 @@ def read_ply(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
     embedding = (np.stack([v[n] for n in emb_names], 1).astype(np.float32) if emb_names
                  else np.zeros((n_vertices, 0), np.float32))
     labels = v['cluster'].astype(np.int32) if 'cluster' in names else None
-    return FruitPointCloud(xyz, rgb, semantic, embedding, _spacing_from_comments(comments)), labels
+    return FruitPointCloud(xyz, rgb, semantic, embedding, _value_from_comments(comments, SPACING_COMMENT),
+                           _value_from_comments(comments, FRUIT_DIAMETER_COMMENT)), labels
 
 
-def _spacing_from_comments(comments: list[str]) -> float | None:
+def _value_from_comments(comments: list[str], key: str) -> float | None:
     for comment in comments:
         words = comment.split()
-        if len(words) == 2 and words[0] == SPACING_COMMENT:
+        if len(words) == 2 and words[0] == key:
             try:
                 return float(words[1])
             except ValueError:

@@ -22,6 +22,8 @@ class FruitPointCloud:
         embedding: [N, D] float32 instance embeddings (L2-normalised).
         spacing_m: the sampling grid's spacing (the export voxel, m) when known; clustering scales its cluster
             sizes to it (``ClusterConfig.reference_spacing_m``). Saved in the PLY header and the .npz.
+        fruit_diameter_m: the scene's fruit diameter when known; clustering scales its lengths (the Euclidean
+            weight, partition overlap) and sizes to it (``ClusterConfig.reference_fruit_diameter_m``). Saved too.
 
     Raises:
         ExportError: the arrays' shapes disagree.
@@ -32,6 +34,7 @@ class FruitPointCloud:
     semantic: np.ndarray
     embedding: np.ndarray
     spacing_m: float | None = None
+    fruit_diameter_m: float | None = None
 
     def __post_init__(self) -> None:
         n = len(self.xyz)
@@ -48,10 +51,11 @@ class FruitPointCloud:
         return int(self.embedding.shape[1])
 
     @classmethod
-    def empty(cls, embedding_dim: int, spacing_m: float | None = None) -> 'FruitPointCloud':
+    def empty(cls, embedding_dim: int, spacing_m: float | None = None,
+              fruit_diameter_m: float | None = None) -> 'FruitPointCloud':
         return cls(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, np.float32),
-                   np.zeros((0, embedding_dim), np.float32), spacing_m)
+                   np.zeros((0, embedding_dim), np.float32), spacing_m, fruit_diameter_m)
 
     def subset(self, mask_or_index: np.ndarray) -> 'FruitPointCloud':
         return FruitPointCloud(self.xyz[mask_or_index], self.rgb[mask_or_index], self.semantic[mask_or_index],
-                               self.embedding[mask_or_index], self.spacing_m)
+                               self.embedding[mask_or_index], self.spacing_m, self.fruit_diameter_m)

@@ -124,12 +124,12 @@ def test_bad_cloud_raises_clustering_error() -> None:
 def test_cluster_sizes_follow_the_point_spacing() -> None:
     """Sizes are given for 2 cm spacing; a finer export has ~(2 cm / s)^2 more points per fruit."""
     config = ClusterConfig(min_cluster_size=15, min_samples=8, min_fruit_points=20, knn_k=24)
-    assert config.for_spacing(None) is config and config.for_spacing(0.02) == config
-    fine = config.for_spacing(0.01)
+    assert config.for_cloud(None) is config and config.for_cloud(0.02) == config
+    fine = config.for_cloud(0.01)
     assert (fine.min_cluster_size, fine.min_samples, fine.min_fruit_points) == (60, 8, 80)  # min_samples is local
-    coarse = config.for_spacing(0.04)
+    coarse = config.for_cloud(0.04)
     assert (coarse.min_cluster_size, coarse.min_samples, coarse.min_fruit_points) == (4, 8, 5)
-    assert ClusterConfig(reference_spacing_m=None).for_spacing(0.01) == ClusterConfig(reference_spacing_m=None)
+    assert ClusterConfig(reference_spacing_m=None).for_cloud(0.01) == ClusterConfig(reference_spacing_m=None)
     # count_fruits takes the spacing from the cloud: 8 fruits of ~50 points survive at 2 cm spacing, not at 5 mm
     synth = make_fruit_cloud(400, 8, seed=3)
     cloud = synth.cloud
@@ -144,3 +144,23 @@ def test_config_rejects_impossible_values() -> None:
         ClusterConfig(lambda_e=0.0)
     with pytest.raises(ConfigError, match='min_samples'):
         ClusterConfig(min_samples=50, knn_k=10)
+
+
+def test_lengths_and_sizes_follow_the_fruit_not_the_metre() -> None:
+    config = ClusterConfig(lambda_e=2.0, overlap_m=0.12, reference_fruit_diameter_m=0.075, fruit_share_cluster=0.3,
+                           fruit_share_keep=0.35)
+    big = config.for_cloud(0.02, 0.15, fruit_points=100.0)
+    assert big.lambda_e == pytest.approx(1.0) and big.overlap_m == pytest.approx(0.24)
+    assert (big.min_cluster_size, big.min_fruit_points) == (30, 35)
+    assert config.for_cloud(0.02, None, None).lambda_e == 2.0  # unknown fruit size: as given
+
+
+def test_a_scaled_copy_of_a_cloud_counts_the_same() -> None:
+    """Touching fruits of 3.5 cm radius, and the same cloud three times larger (10.5 cm fruits): same labels."""
+    synth = make_fruit_cloud(2400, 12, touching=True, seed=5)
+    c = synth.cloud
+    small = FruitPointCloud(c.xyz, c.rgb, c.semantic, c.embedding, spacing_m=0.01, fruit_diameter_m=0.07)
+    large = FruitPointCloud(c.xyz * 3.0, c.rgb, c.semantic, c.embedding, spacing_m=0.03, fruit_diameter_m=0.21)
+    a, b = (count_fruits(cloud, ClusterConfig(n_jobs=1)) for cloud in (small, large))
+    assert a.count == b.count >= 10 and np.array_equal(a.labels, b.labels)
+    assert b.stats['points_per_fruit'] == a.stats['points_per_fruit']

@@ -13,7 +13,7 @@ from fruitnerfpp_ros.core.clustering.synthetic_cloud import make_fruit_cloud
 
 def test_a_cluster_holding_two_fruits_is_split_and_normal_ones_are_kept() -> None:
     synth = make_fruit_cloud(3000, 6, seed=4)
-    config = ClusterConfig(n_jobs=1).for_spacing(synth.cloud.spacing_m)
+    config = ClusterConfig(n_jobs=1).for_cloud(synth.cloud.spacing_m)
     merged = synth.labels.copy()
     merged[merged == 1] = 0  # as if 'eom' had kept fruits 0 and 1 together
     diameters = {label: d for label, (d, _) in cluster_diameters(synth.cloud.xyz, merged).items()}
@@ -28,7 +28,7 @@ def test_a_cluster_holding_two_fruits_is_split_and_normal_ones_are_kept() -> Non
 
 def test_even_sized_clusters_are_left_alone_and_the_split_can_be_switched_off() -> None:
     synth = make_fruit_cloud(3000, 6, seed=5)
-    config = ClusterConfig(n_jobs=1).for_spacing(synth.cloud.spacing_m)
+    config = ClusterConfig(n_jobs=1).for_cloud(synth.cloud.spacing_m)
     labels, n_split = split_oversized(synth.cloud.xyz, synth.cloud.embedding, synth.labels, config)
     assert n_split == 0 and np.array_equal(labels, synth.labels)
     merged = np.where(synth.labels == 1, 0, synth.labels)
@@ -39,7 +39,7 @@ def test_even_sized_clusters_are_left_alone_and_the_split_can_be_switched_off() 
 
 def test_one_giant_cluster_without_a_typical_fruit_is_split_into_its_fruits() -> None:
     synth = make_fruit_cloud(3000, 6, seed=4)
-    config = ClusterConfig(n_jobs=1).for_spacing(synth.cloud.spacing_m)
+    config = ClusterConfig(n_jobs=1).for_cloud(synth.cloud.spacing_m)
     giant = np.where(synth.labels == 5, 1, 0)  # fruits 0-4 as one cluster, fruit 5 alone: no median to trust
     labels, n_split = split_oversized(synth.cloud.xyz, synth.cloud.embedding, giant, config)
     assert n_split == 1 and len(np.unique(labels[labels >= 0])) == 6

@@ -1,0 +1,110 @@
+"""Surface export against an exact sphere field over the stand-in scene: fruit surfaces in, fog and floaters out."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.counter import count_fruits
+from fruitnerfpp_ros.core.data.dataset import load_dataset
+from fruitnerfpp_ros.core.export.config import ExportConfig
+from fruitnerfpp_ros.core.export.surface import export_surface_cloud, merge_on_voxels
+from fruitnerfpp_ros.core.rendering.renderer import RenderSettings
+from test.core.export.sphere_nerf import SphereNeRF, full_grid
+from test.core.training.stand_in_scene import make_sphere_scene
+
+SETTINGS = RenderSettings(step=0.01, near=0.05)
+FRUIT_D = 0.16  # the stand-in fruits are spheres of 7-9 cm radius
+
+
+@pytest.fixture(scope='module')
+def scene(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return make_sphere_scene(tmp_path_factory.mktemp('spheres'), views=24, size=64, fruits=6)
+
+
+def _export(scene: Path, field: SphereNeRF, **config: object) -> tuple:
+    dataset = load_dataset(scene, eval_every=0)
+    return export_surface_cloud(field, full_grid(), SETTINGS, dataset, dataset.T_world_camera, FRUIT_D,
+                                ExportConfig(**config))
+
+
+def _surface_gap(xyz: np.ndarray, scene: Path) -> np.ndarray:
+    spheres = np.load(scene / 'spheres.npz')
+    fruit = spheres['is_fruit']
+    gap = np.abs(np.linalg.norm(xyz[:, None] - spheres['centres'][fruit][None], axis=-1) - spheres['radii'][fruit])
+    return gap.min(axis=1)
+
+
+def test_points_lie_on_the_fruit_surfaces_and_count_as_the_fruits(scene: Path) -> None:
+    cloud, report = _export(scene, SphereNeRF(scene))
+    assert report.n_kept == len(cloud) > 0 and report.voxel_size_m == pytest.approx(FRUIT_D / 8)
+    assert np.all(_surface_gap(cloud.xyz, scene) < 0.6 * report.voxel_size_m + SETTINGS.step)
+    spheres = np.load(scene / 'spheres.npz')
+    fruit, leaf = spheres['is_fruit'], ~spheres['is_fruit']
+    # a fruit sphere wholly inside a leaf sphere is hidden from every view
+    depth_in_leaf = (spheres['radii'][leaf][None] - np.linalg.norm(
+        spheres['centres'][fruit][:, None] - spheres['centres'][leaf][None], axis=-1)).max(axis=1)
+    visible = spheres['centres'][fruit][depth_in_leaf < spheres['radii'][fruit]]
+    assert len(visible) >= 4
+    result = count_fruits(dataclasses.replace(cloud, fruit_diameter_m=FRUIT_D), ClusterConfig(n_jobs=1))
+    assert result.count == len(visible)
+    found = np.linalg.norm(result.centers()[:, None] - visible[None], axis=-1).min(axis=0)
+    assert np.all(found < 0.09)  # every visible fruit's cluster centre lies within a radius of its centre
+
+
+def test_a_semi_transparent_fruit_gives_no_point(scene: Path) -> None:
+    """Fruit 0 rendered as haze (2/m over its 16 cm: opacity ~0.3) is fog, however fruit-like its semantics."""
+    centre = np.load(scene / 'fruit_centres.npy')[0]
+    field = SphereNeRF(scene, faded={0: 2.0})
+    near = lambda cloud: int((np.linalg.norm(cloud.xyz - centre, axis=1) < 0.1).sum())  # noqa: E731
+    unfiltered, _ = _export(scene, field, min_opacity=0.0)
+    filtered, report = _export(scene, field)
+    assert near(unfiltered) > 0 and near(filtered) == 0
+    assert report.n_opaque < report.n_rays
+    assert near(_export(scene, SphereNeRF(scene))[0]) > 0  # the opaque fruit 0 is exported
+
+
+def test_a_floater_seen_by_one_view_is_not_a_fruit(scene: Path) -> None:
+    """A fruit-labelled floater in front of a fruit of view 0 (inside the box) catches that view's fruit rays; the
+    other views' masks disown it."""
+    import cv2
+    dataset = load_dataset(scene, eval_every=0)
+    ids = cv2.imread(str(scene / 'instances' / '0000.png'), cv2.IMREAD_UNCHANGED)
+    biggest = np.bincount(ids[ids > 0]).argmax()
+    rows, cols = np.nonzero(ids == biggest)
+    T, K = dataset.T_world_camera[0].numpy(), dataset.intrinsics[0].numpy()
+    d_cam = np.array([(cols.mean() + 0.5 - K[2]) / K[0], -(rows.mean() + 0.5 - K[3]) / K[1], -1.0])
+    direction = T[:3, :3] @ d_cam / np.linalg.norm(d_cam)
+    floater = T[:3, 3] + 2.2 * direction                  # 2.2 m along view 0's ray to its biggest fruit
+    spheres = dict(np.load(scene / 'spheres.npz'))
+    ghost = scene.parent / 'ghost'
+    ghost.mkdir(exist_ok=True)
+    np.savez(ghost / 'spheres.npz', centres=np.vstack([spheres['centres'], floater]),
+             radii=np.append(spheres['radii'], 0.06), is_fruit=np.append(spheres['is_fruit'], True))
+    field = SphereNeRF(ghost)
+    near_floater = lambda cloud: int((np.linalg.norm(cloud.xyz - floater, axis=1) < 0.08).sum())  # noqa: E731
+    unfiltered, _ = _export(scene, field, min_mask_agreement=0.0, min_views=1)
+    filtered, report = _export(scene, field)
+    assert near_floater(unfiltered) > 0
+    assert near_floater(filtered) == 0
+    assert report.n_kept < report.n_multi_view or report.n_multi_view < report.n_voxels
+
+
+def test_merge_counts_distinct_views_per_voxel() -> None:
+    xyz = torch.tensor([[0.001, 0.001, 0.001], [0.002, 0.002, 0.002], [0.003, 0.001, 0.002], [0.5, 0.5, 0.5]])
+    view = torch.tensor([3, 3, 7, 1])
+    emb = torch.tensor([[1.0, 0.0], [0.0, 1.0], [1.0, 0.0], [0.0, 1.0]])
+    mean, values, n_views = merge_on_voxels(xyz, view, {'emb': emb}, voxel=0.01)
+    order = torch.argsort(mean[:, 0])
+    assert n_views[order].tolist() == [2, 1]
+    assert torch.allclose(values['emb'][order][0], torch.tensor([2 / 3, 1 / 3]))
+
+
+def test_an_empty_export_says_why(scene: Path) -> None:
+    _, report = _export(scene, SphereNeRF(scene, density=0.5))  # the field stays transparent
+    assert report.n_kept == 0 and 'no fruit ray became opaque' in report.explain()
