@@ -24,10 +24,10 @@ from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer
 from fruitnerfpp_ros.core.geometry import (principal_point_transforms_from_ros, quaternion_from_transform,
                                            transform_from_quaternion)
-from fruitnerfpp_ros.errors import ConversionError
+from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
 
 __all__ = [
-    'REPORT_SCHEMA', 'REPORT_VERSION', 'CLOUD_DTYPE', 'CameraModel',
+    'REPORT_SCHEMA', 'REPORT_VERSION', 'CLOUD_DTYPE', 'QUATERNION_NORM_TOLERANCE', 'CameraModel',
     'stamp_ns_from_header', 'time_msg_from_ns',
     'image_from_msg', 'mask_from_msg', 'camera_model_from_camera_info', 'intrinsics_from_camera_info',
     'undistort_image', 'undistort_mask', 'undistorter_for', 'valid_pixels', 'transform_from_pose_msg',
@@ -51,6 +51,11 @@ _MASK_ENCODINGS = {
     '8UC1': np.uint8,
 }
 _DISTORTION_MODELS = ('plumb_bob', 'rational_polynomial', 'equidistant')
+#: Coefficient counts OpenCV undoes per model (ROS: plumb_bob 5, rational_polynomial 8, equidistant 4).
+_DISTORTION_SIZES = {'plumb_bob': (4, 5, 8, 12, 14), 'rational_polynomial': (4, 5, 8, 12, 14),
+                     'equidistant': (4,)}
+#: A pose's quaternion may differ this much from unit length (float rounding); beyond, the pose is refused.
+QUATERNION_NORM_TOLERANCE = 1e-3
 
 
 class CameraModel(NamedTuple):
@@ -194,6 +199,9 @@ def camera_model_from_camera_info(msg: Any, *, topic: str = 'camera_info') -> Ca
                               f'expected one of {", ".join(_DISTORTION_MODELS)}')
     if not np.all(np.isfinite(D)):
         raise ConversionError(f'{topic}: distortion coefficients are not finite: {D.tolist()}')
+    if D.size and np.any(D != 0.0) and D.size not in _DISTORTION_SIZES[model]:
+        raise ConversionError(f'{topic}: {D.size} distortion coefficients for model {model!r}; expected '
+                              f'{" or ".join(map(str, _DISTORTION_SIZES[model]))}')
     cx, cy = principal_point_transforms_from_ros(float(K[0, 2]), float(K[1, 2]))
     intrinsics = CameraIntrinsics(float(K[0, 0]), float(K[1, 1]), cx, cy, width, height)
     return CameraModel(intrinsics, K, D, model, str(msg.header.frame_id))
@@ -229,7 +237,12 @@ def undistorter_for(camera: CameraModel) -> LensUndistorter | None:
         if len(_UNDISTORTERS) > 8:
             _UNDISTORTERS.clear()
         model = camera.distortion_model if camera.distortion_model in DISTORTION_MODELS else 'plumb_bob'
-        _UNDISTORTERS[key] = LensUndistorter(camera.K, camera.D, model, (camera.intrinsics.w, camera.intrinsics.h))
+        try:
+            _UNDISTORTERS[key] = LensUndistorter(camera.K, camera.D, model,
+                                                 (camera.intrinsics.w, camera.intrinsics.h))
+        except (cv2.error, FruitNerfError) as err:
+            raise ConversionError(f'camera {camera.frame_id!r}: cannot build its undistortion maps: '
+                                  f'{str(err).strip().splitlines()[-1]}') from err
     return _UNDISTORTERS[key]
 
 
@@ -256,8 +269,9 @@ def valid_pixels(camera: CameraModel) -> np.ndarray | None:
 def _checked_transform(translation: np.ndarray, quaternion: np.ndarray, what: str) -> np.ndarray:
     if not (np.all(np.isfinite(translation)) and np.all(np.isfinite(quaternion))):
         raise ConversionError(f'{what}: pose is not finite (t={translation.tolist()}, q={quaternion.tolist()})')
-    if np.linalg.norm(quaternion) < 1e-6:
-        raise ConversionError(f'{what}: zero quaternion')
+    norm = float(np.linalg.norm(quaternion))
+    if not abs(norm - 1.0) <= QUATERNION_NORM_TOLERANCE:  # also a zero or overflowing quaternion
+        raise ConversionError(f'{what}: quaternion is not unit length (|q| = {norm:.6g}, q={quaternion.tolist()})')
     return transform_from_quaternion(translation, quaternion)
 
 
@@ -265,7 +279,8 @@ def transform_from_pose_msg(pose: Any, *, topic: str = 'pose') -> np.ndarray:
     """4x4 transform of a ``geometry_msgs/Pose`` (also accepts PoseStamped / PoseWithCovariance[Stamped]).
 
     Raises:
-        ConversionError: NaN/inf values or a zero quaternion.
+        ConversionError: NaN/inf values or a quaternion that is not unit length (within
+            :data:`QUATERNION_NORM_TOLERANCE`).
     """
     while not hasattr(pose, 'position'):
         pose = pose.pose

@@ -9,8 +9,8 @@ and offered to the :class:`KeyframeStore`, which writes it to disk when kept.
 Bad input never raises out of :meth:`on_message`: it is logged (throttled per kind) and counted in
 :attr:`FrameAssembler.errors`; frames already collected stay on disk. A keyframe the store cannot write (a full
 disk) is an error log and ``errors['write']``; the node keeps collecting. Stamps that jump back in time by more
-than ``pending_timeout_s`` (a bag played again, a clock reset) clear the sync queues, the waiting frames and the
-dynamic TF history (``time_jumps``), so collection continues on the new time line.
+than ``pending_timeout_s`` (a bag played again, a clock reset) clear the sync queues and the waiting frames
+(``time_jumps``; the TF buffer starts each edge over by itself), so collection continues on the new time line.
 """
 
 from __future__ import annotations
@@ -134,15 +134,15 @@ class FrameAssembler:
         return self._drain()
 
     def _time_jump(self, role: str, stamp_ns: int) -> None:
-        """Stamps went back in time: start a new time line (queues, waiting frames and TF history cleared)."""
+        """Stamps went back in time: start a new time line (sync queues and waiting frames cleared; the TF buffer
+        restarts an edge's history when a transform older than its cache arrives)."""
         back_s = (self._newest_stamp_ns - stamp_ns) / 1e9
         self.time_jumps += 1
         self._throttled(LogLevel.WARN, 'time_jump', f'{self.topic_of(role)}: stamp jumped back {back_s:.1f} s (a bag '
-                        'played again or a clock reset): sync queues, waiting frames and /tf history cleared')
+                        'played again or a clock reset): sync queues and waiting frames cleared')
         self.sync.reset()
         self.dropped_pending += len(self._pending)
         self._pending = []
-        self.tf.clear(static=False)
         self._newest_stamp_ns = stamp_ns
 
     # ------------------------------------------------------------------ frames
@@ -167,6 +167,10 @@ class FrameAssembler:
             except FruitNerfError as err:
                 self.errors['frame'] += 1
                 self._throttled(LogLevel.WARN, _kind(f'frame:{err}'), f'frame at {synced.stamp_ns} ns dropped: {err}')
+            except Exception as err:  # noqa: BLE001 - one unreadable frame must not hold up the frames behind it
+                self.errors['frame'] += 1
+                self._throttled(LogLevel.WARN, f'frame:{type(err).__name__}', f'frame at {synced.stamp_ns} ns '
+                                f'dropped: {type(err).__name__}: {err}')
         self._pending = waiting
         for decision in decisions:
             self.decisions[decision.value] += 1
@@ -209,6 +213,9 @@ class FrameAssembler:
             n = len(self.store)
             if n == 1 or n % 10 == 0:
                 self._log(LogLevel.INFO, f'{n} keyframe(s) collected in {self.store.directory}')
+        elif decision is KeyframeDecision.DUPLICATE_STAMP:
+            self._throttled(LogLevel.WARN, 'duplicate', f'frame at {synced.stamp_ns} ns skipped: a keyframe with this '
+                            'stamp is already stored (a repeated message)')
         elif decision is KeyframeDecision.FULL:
             self._throttled(LogLevel.WARN, 'full', f'max_keyframes={self.store.config.max_keyframes} reached; '
                             'further frames are ignored (call ~/train or ~/reset)')

@@ -70,6 +70,31 @@ def messages(n: int = 6, *, camera_info: bool = True, bad_encoding_at: tuple[int
     return out
 
 
+def dataset_messages(dataset_dir: Path, period_ns: int = PERIOD_NS) -> list[tuple[str, str, int, Any]]:
+    """(topic, type, stamp, rclpy message) of every view of a transforms.json dataset, one frame per period."""
+    import cv2
+
+    from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+    from fruitnerfpp_ros.core.geometry import optical_from_opengl
+
+    data = read_transforms(dataset_dir)
+    out = []
+    for k, frame in enumerate(data.frames):
+        stamp = START_NS + k * period_ns
+        rgb = cv2.imread(str(dataset_dir / frame.file_path))[..., ::-1]
+        ids = cv2.imread(str(dataset_dir / frame.instance_path), cv2.IMREAD_UNCHANGED).astype(np.uint16)
+        pose = PoseStamped(header=Header(stamp=time_msg_from_ns(stamp), frame_id='map'),
+                           pose=pose_msg_from_transform(optical_from_opengl(frame.T_world_camera)))
+        out += [('/camera/camera_info', 'sensor_msgs/msg/CameraInfo', stamp,
+                 camera_info_msg_from_intrinsics(data.intrinsics_of(k), 'camera_optical', stamp)),
+                ('/camera/image_raw', 'sensor_msgs/msg/Image', stamp,
+                 image_msg_from_array(rgb, 'rgb8', 'camera_optical', stamp)),
+                ('/camera/pose', 'geometry_msgs/msg/PoseStamped', stamp, pose),
+                ('/camera/instance_mask', 'sensor_msgs/msg/Image', stamp,
+                 image_msg_from_array(ids, 'mono16', 'camera_optical', stamp))]
+    return out
+
+
 def write_bag(path: Path, msgs: list[tuple[str, str, int, Any]], storage: str = 'mcap',
               tf_frames: int = 0) -> Path:
     """Write ``msgs`` (and, with tf_frames, /tf map->base_link + /tf_static base_link->camera_optical)."""
@@ -116,5 +141,5 @@ def _write_tf(writer: Writer, typestore: Any, n: int) -> None:
                                                         'tf2_msgs/msg/TFMessage'))
 
 
-__all__ = ['messages', 'write_bag', 'frame_pose', 'frame_pixels', 'INTRINSICS', 'START_NS', 'PERIOD_NS',
-           'CameraInfo']
+__all__ = ['messages', 'dataset_messages', 'write_bag', 'frame_pose', 'frame_pixels', 'INTRINSICS', 'START_NS',
+           'PERIOD_NS', 'CameraInfo']

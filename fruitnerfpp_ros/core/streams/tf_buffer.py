@@ -77,15 +77,6 @@ class TfBuffer:
         if cut:
             del edge.stamps[:cut], edge.transforms[:cut]
 
-    def clear(self, *, static: bool = False) -> None:
-        """Forget every dynamic transform (and the static ones too when ``static``)."""
-        if static:
-            self._edges.clear()
-            return
-        for edge in self._edges.values():
-            edge.stamps, edge.transforms = [], []
-        self._edges = {child: e for child, e in self._edges.items() if e.static is not None or e.stamps}
-
     def _edge_transform(self, child: str, edge: _Edge, stamp_ns: int) -> np.ndarray:
         if edge.static is not None:
             return edge.static
