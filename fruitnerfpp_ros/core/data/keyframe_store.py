@@ -126,6 +126,24 @@ def sharpness_from_image(rgb: np.ndarray) -> float:
     return float(cv2.Laplacian(grey, cv2.CV_64F).var())
 
 
+#: Every PNG ends with its IEND chunk; a file cut by a full disk does not.
+_PNG_END = b'IEND\xaeB`\x82'
+
+
+def _check_complete(paths: list[Path]) -> None:
+    """Raise DatasetError for a PNG that does not end with its IEND chunk.
+
+    OpenCV's PNG writer may return success when the disk filled up while its buffer was flushed (a 0-byte or cut
+    file); such a file must not become part of a keyframe.
+    """
+    for path in paths:
+        with open(path, 'rb') as f:
+            size = f.seek(0, os.SEEK_END)
+            f.seek(max(0, size - len(_PNG_END)))
+            if f.read() != _PNG_END:
+                raise DatasetError(f'cannot write image {path}: the file was cut short ({size} bytes)')
+
+
 def motion_between(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     """(translation in metres, rotation in degrees) between two camera poses."""
     translation = float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))
@@ -262,6 +280,7 @@ class KeyframeStore:
             write_mask_png(paths[2], instance > 0)
             if partial:
                 write_mask_png(paths[3], keyframe.valid)
+            _check_complete([p for p in paths if p.exists()])  # OpenCV may report a cut file as written
             append_entry(self.directory, JournalEntry(index, entry, intrinsics if index == 0 else None))
         except (OSError, DatasetError) as err:
             for path in paths:
