@@ -278,6 +278,7 @@ class FruitCounterNode(Node):
             self._rate_since = now
             last_rx = dict(self._last_rx)
             dropped = {self.assembler.topic_of(role): n for role, n in self.dropped.items()}
+            received = {self.assembler.topic_of(role): n for role, n in self._received.items()}
         run = self.run_status
         # Inputs are expected while collecting; once a drive is done and training runs, silence is normal.
         silent = [role for role in self.assembler.required_roles() if role in self._queues
@@ -292,7 +293,8 @@ class FruitCounterNode(Node):
         status = NodeStatus.from_parts(run, frames, dropped_queue=sum(dropped.values()), run_dir=self.run_dir,
                                        rates_hz={self.assembler.topic_of(r): v for r, v in rates.items()},
                                        silent_topics=tuple(self.assembler.topic_of(r) for r in silent),
-                                       dropped_per_topic=dropped, write_error=write_error)
+                                       dropped_per_topic=dropped, write_error=write_error,
+                                       received_per_topic=received)
         self._diagnostics_pub.publish(diagnostics_msg(f'{self.get_name()}: pipeline', self.get_name(), status.level,
                                                       status.message(), status.values(),
                                                       self.get_clock().now().nanoseconds))

@@ -123,8 +123,9 @@ class NodeStatus:
         run_dir: the node's output directory.
         rates_hz: input rate per topic over the last diagnostics period (Hz).
         silent_topics: required inputs silent for longer than ``silent_input_warning_s``.
-        counters: what was skipped and why (``skipped/<role or kind>``, ``rejected/<reason>``,
-            ``dropped_queue/<topic>``, ``write_errors``, ``time_jumps``), each a count since the start.
+        counters: messages received per topic (``received/<topic>``) and what was skipped and why
+            (``skipped/<role or kind>``, ``rejected/<reason>``, ``dropped_queue/<topic>``, ``write_errors``,
+            ``time_jumps``), each a count since the start.
         write_error: the last failed keyframe write when one failed since the last snapshot ('' otherwise).
     """
 
@@ -146,9 +147,11 @@ class NodeStatus:
     @classmethod
     def from_parts(cls, run: RunStatus, frames: AssemblerStatus, *, dropped_queue: int, run_dir: Path,
                    rates_hz: Mapping[str, float], silent_topics: tuple[str, ...],
-                   dropped_per_topic: Mapping[str, int] | None = None, write_error: str = '') -> 'NodeStatus':
+                   dropped_per_topic: Mapping[str, int] | None = None, write_error: str = '',
+                   received_per_topic: Mapping[str, int] | None = None) -> 'NodeStatus':
         """The snapshot of a run status and the assembler's counters."""
-        counters = {f'skipped/{kind}': n for kind, n in sorted(frames.errors.items())}
+        counters = {f'received/{topic}': n for topic, n in sorted((received_per_topic or {}).items())}
+        counters.update({f'skipped/{kind}': n for kind, n in sorted(frames.errors.items())})
         counters.update({f'rejected/{reason}': n for reason, n in sorted(frames.rejected.items()) if n})
         counters.update({f'dropped_queue/{topic}': n for topic, n in sorted((dropped_per_topic or {}).items())})
         counters.update(write_errors=frames.write_errors, time_jumps=frames.time_jumps)

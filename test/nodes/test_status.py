@@ -29,7 +29,8 @@ def _status(run: RunStatus, silent: tuple[str, ...] = ()) -> NodeStatus:
                              write_errors=1, time_jumps=2)
     return NodeStatus.from_parts(run, frames, dropped_queue=4, run_dir=Path('/tmp/run'),
                                  rates_hz={'/camera/image_raw': 10.04}, silent_topics=silent,
-                                 dropped_per_topic={'/camera/image_raw': 4})
+                                 dropped_per_topic={'/camera/image_raw': 4},
+                                 received_per_topic={'/camera/image_raw': 9})
 
 
 def test_diagnostics_values_keep_the_published_keys_and_formats() -> None:
@@ -38,7 +39,8 @@ def test_diagnostics_values_keep_the_published_keys_and_formats() -> None:
         'state': 'exporting', 'phase': 'export', 'progress': '0.457', 'keyframes': '7', 'fruit_count': '',
         'run_dir': '/tmp/run', 'dropped_queue': '4', 'frame_errors': '3', 'sync_unmatched': '4',
         'rate_hz//camera/image_raw': '10.0', 'skipped/frame': '2', 'skipped/image': '1', 'rejected/too_close': '5',
-        'dropped_queue//camera/image_raw': '4', 'write_errors': '1', 'time_jumps': '2'}
+        'dropped_queue//camera/image_raw': '4', 'write_errors': '1', 'time_jumps': '2',
+        'received//camera/image_raw': '9'}
     assert status.message() == 'exporting export 46%' and status.level is DiagnosticLevel.OK
     done = _status(RunStatus(NodeState.DONE, None, 1.0, last_count=12)).values()
     assert (done['state'], done['phase'], done['fruit_count']) == ('done', '', '12')

@@ -178,7 +178,8 @@ class KeyframeStore:
         self.config = config
         self.index_period_s = index_period_s
         self.index_every_frame_below = index_every_frame_below
-        self._lock = threading.Lock()
+        self._lock = threading.Lock()  # the frame list and counters: held for short updates only
+        self._write_lock = threading.RLock()  # one writer at a time: offers (files), index writes, reset
         self._frames: list[FrameEntry] = []
         self._stamps: set[int] = set()
         self._intrinsics: CameraIntrinsics | None = None
@@ -229,22 +230,18 @@ class KeyframeStore:
     def offer(self, keyframe: Keyframe) -> KeyframeDecision:
         """Keep ``keyframe`` if it passes the selection; write it to disk at once when kept.
 
-        A segmenter (``keyframe.instance`` callable) runs only for a kept frame, and outside the store's lock, so
-        ``len``, ``frames`` and ``snapshot`` from other threads never wait for a model.
+        A segmenter (``keyframe.instance`` callable) runs only for a kept frame. The segmenter and the file writes
+        run outside the state lock, so ``len`` and ``frames`` from other threads (diagnostics, services) never wait
+        for them; ``snapshot``, ``flush`` and ``reset`` wait for the keyframe being written.
         """
-        if callable(keyframe.instance):
+        with self._write_lock:
             with self._lock:
                 decision = self._decide(keyframe)
-            if decision is not KeyframeDecision.ACCEPTED:
-                with self._lock:
+                if decision is not KeyframeDecision.ACCEPTED:
                     self.rejected[decision] += 1
-                return decision
-            keyframe = keyframe._replace(instance=keyframe.instance())
-        with self._lock:
-            decision = self._decide(keyframe)  # again: the store may have changed while the segmenter ran
-            if decision is not KeyframeDecision.ACCEPTED:
-                self.rejected[decision] += 1
-                return decision
+                    return decision
+            if callable(keyframe.instance):
+                keyframe = keyframe._replace(instance=keyframe.instance())
             self._write(keyframe)
             return decision
 
@@ -296,10 +293,11 @@ class KeyframeStore:
             self.last_write_error = (f'{self.directory}: keyframe {index} not stored ({reason}); the {index} '
                                      'keyframe(s) stored before are intact')
             raise DatasetError(self.last_write_error) from err
-        self._intrinsics = intrinsics
-        self._frames.append(entry)
-        self._stamps.add(int(keyframe.stamp_ns))
-        self._last_T = np.asarray(keyframe.T_world_optical, dtype=np.float64)
+        with self._lock:
+            self._intrinsics = intrinsics
+            self._frames.append(entry)
+            self._stamps.add(int(keyframe.stamp_ns))
+            self._last_T = np.asarray(keyframe.T_world_optical, dtype=np.float64)
         self._index_dirty = True
         self._write_index()
 
@@ -324,7 +322,7 @@ class KeyframeStore:
 
     def flush(self) -> None:
         """Write transforms.json now if keyframes arrived since it was last written."""
-        with self._lock:
+        with self._write_lock:
             self._write_index(force=True)
 
     def _transforms(self, frames: list[FrameEntry]) -> TransformsFile:
@@ -342,7 +340,7 @@ class KeyframeStore:
         """
         dataset_dir = Path(dataset_dir)
         dataset_dir.mkdir(parents=True, exist_ok=True)
-        with self._lock:
+        with self._write_lock:  # no keyframe is being added meanwhile
             self._write_index(force=True)
             if not self._frames:
                 raise DatasetError(f'{self.directory}: no keyframes collected yet')
@@ -362,7 +360,7 @@ class KeyframeStore:
         Returns:
             where the old keyframes went, or None when there were none.
         """
-        with self._lock:
+        with self._write_lock, self._lock:
             moved = None
             if self._frames:
                 self._write_index(force=True)

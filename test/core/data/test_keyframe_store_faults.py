@@ -153,3 +153,28 @@ def test_a_real_full_disk_for_keyframes_and_checkpoints(tmp_path: Path) -> None:
     assert result['ckpt_kept'] and result['tmp_left'] == []
     assert result['reopened'] == n and result['readable'] and result['index'] == n + 1
     assert result['after'] == 'accepted'
+
+
+def test_readers_never_wait_for_a_keyframe_being_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Before: offer() held the store's lock while encoding PNGs, so /diagnostics (len) and ~/save waited for the
+    disk (a 1280x720 keyframe takes ~0.2 s, a slow disk far longer)."""
+    import threading
+    import time
+    store = KeyframeStore(tmp_path / 'kf')
+    store.offer(_kf(0))
+    real = keyframe_store.write_rgb_png
+    writing = threading.Event()
+
+    def slow_disk(*args: object) -> None:
+        writing.set()
+        time.sleep(1.0)
+        real(*args)
+    monkeypatch.setattr(keyframe_store, 'write_rgb_png', slow_disk)
+    writer = threading.Thread(target=store.offer, args=(_kf(1),))
+    writer.start()
+    assert writing.wait(5)
+    started = time.monotonic()
+    assert len(store) == 1 and len(store.frames) == 1
+    assert time.monotonic() - started < 0.5
+    writer.join()
+    assert len(store) == 2
