@@ -134,6 +134,8 @@ def test_fruitnerfpp_run_resumes_after_kill(faults: SimpleNamespace) -> None:
             str(faults.config), '--device', 'cpu', '--resume']
     for point in POINTS['run']:
         Program(point, args, faults.root / 'run.log').kill_at_point()
+        with open(out / 'metrics.jsonl', 'a') as f:  # as if the kill had cut a line (before: JSONDecodeError)
+            f.write('{"stage": "geometry", "st')
     assert not (out / 'counts.json').exists()
     Program('none', args, faults.root / 'run.log').finish()
     _assert_same_as_reference(faults, out, faults.keyframes)

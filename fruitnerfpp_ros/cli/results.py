@@ -164,6 +164,9 @@ def _run_pipeline(args: argparse.Namespace) -> int:
 
     from fruitnerfpp_ros.core.device import use_cpu_threads
 
+    if args.resume:  # a kill or a full disk may have cut the last metrics line: resume reads the log again
+        from fruitnerfpp_ros.core.atomic_io import trim_torn_line
+        trim_torn_line(Path(args.out) / 'metrics.jsonl')
     train_config = resolve_train_config(args.preset, args.config, section='train')
     use_cpu_threads(train_config.cpu_threads, args.device)
     cluster_config = _cluster_config(args, args.config)

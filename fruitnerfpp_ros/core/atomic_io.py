@@ -1,4 +1,8 @@
-"""Atomic file writes: a crash or a kill leaves either the previous file or the new one, never half of one."""
+"""Atomic file writes: a crash or a kill leaves either the previous file or the new one, never half of one.
+
+Appended logs (one JSON record per line) cannot be replaced atomically; :func:`trim_torn_line` cuts the last
+line off such a file when a kill or a full disk left it without its newline, before the file is read again.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +11,7 @@ import os
 from collections.abc import Iterator
 from pathlib import Path
 
-__all__ = ['atomic_path', 'atomic_write_bytes', 'atomic_write_text']
+__all__ = ['atomic_path', 'atomic_write_bytes', 'atomic_write_text', 'trim_torn_line']
 
 
 @contextlib.contextmanager
@@ -41,3 +45,24 @@ def atomic_write_bytes(path: str | Path, data: bytes, *, fsync: bool = False) ->
 def atomic_write_text(path: str | Path, text: str, *, fsync: bool = False) -> Path:
     """Write ``text`` (UTF-8) to ``path`` atomically."""
     return atomic_write_bytes(path, text.encode('utf-8'), fsync=fsync)
+
+
+def trim_torn_line(path: str | Path) -> int:
+    """Cut a last line without its newline off a line-per-record file (``metrics.jsonl``); returns the bytes cut.
+
+    A missing file or one ending with a newline is left as it is.
+    """
+    path = Path(path)
+    if not path.is_file():
+        return 0
+    with open(path, 'rb+') as f:
+        size = f.seek(0, os.SEEK_END)
+        if size == 0:
+            return 0
+        f.seek(size - 1)
+        if f.read(1) == b'\n':
+            return 0
+        f.seek(0)
+        keep = f.read().rfind(b'\n') + 1
+        f.truncate(keep)
+        return size - keep

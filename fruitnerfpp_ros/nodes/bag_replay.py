@@ -24,7 +24,7 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from fruitnerfpp_ros.core.atomic_io import atomic_write_text
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text, trim_torn_line
 from fruitnerfpp_ros.core.bags import BagSource, BagTopic, FileRecovery, open_bag
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
 from fruitnerfpp_ros.core.progress import ProgressCallback
@@ -321,6 +321,8 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
     from fruitnerfpp_ros.core.clustering.workers import partition_pool
     from fruitnerfpp_ros.core.pipeline import run_pipeline
     from fruitnerfpp_ros.core.device import use_cpu_threads
+    if resume:  # a kill or a full disk may have cut the last metrics line, which resuming reads again
+        trim_torn_line(run_dir / 'metrics.jsonl')
     configs = pipeline_configs(settings)
     for warning in configs.warnings:
         log(LogLevel.WARN, warning)

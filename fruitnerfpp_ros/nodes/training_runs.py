@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
-from fruitnerfpp_ros.core.atomic_io import atomic_write_text
+from fruitnerfpp_ros.core.atomic_io import atomic_write_text, trim_torn_line
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeSnapshot, KeyframeStore
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.progress import ProgressEvent
@@ -205,6 +205,8 @@ class TrainingRuns:
             for warning in configs.warnings:
                 self._log(LogLevel.WARN, warning)
             use_cpu_threads(configs.train.cpu_threads, settings.device)  # the node owns its process
+            if resume:  # a kill or a full disk may have cut the last metrics line, which resuming reads again
+                trim_torn_line(train_dir / 'metrics.jsonl')
             with partition_pool(configs.cluster.n_jobs) as pool:  # workers live for this run only
                 result = run_pipeline(snapshot.dataset_dir, train_dir, train_config=configs.train,
                                       export_config=configs.export, cluster_config=configs.cluster,

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from fruitnerfpp_ros.core.atomic_io import atomic_path, atomic_write_text
+from fruitnerfpp_ros.core.atomic_io import atomic_path, atomic_write_text, trim_torn_line
 
 
 def test_write_creates_parents_and_replaces(tmp_path: Path) -> None:
@@ -23,3 +23,14 @@ def test_failed_writer_keeps_previous_file(tmp_path: Path) -> None:
         raise RuntimeError('writer died')
     assert target.read_text() == 'previous'
     assert [p.name for p in tmp_path.iterdir()] == ['cloud.ply']
+
+
+def test_a_torn_last_line_is_cut_and_whole_lines_stay(tmp_path: Path) -> None:
+    log = tmp_path / 'metrics.jsonl'
+    assert trim_torn_line(log) == 0
+    log.write_bytes(b'{"step": 1}\n{"step": 2}\n{"step": 3, "lo')
+    assert trim_torn_line(log) == len(b'{"step": 3, "lo')
+    assert log.read_bytes() == b'{"step": 1}\n{"step": 2}\n'
+    assert trim_torn_line(log) == 0 and log.read_bytes() == b'{"step": 1}\n{"step": 2}\n'
+    log.write_bytes(b'{"st')
+    assert trim_torn_line(log) == 4 and log.read_bytes() == b''
