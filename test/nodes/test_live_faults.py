@@ -93,9 +93,9 @@ def test_train_calls_at_once_empty_train_and_reset_during_training(live: Graph, 
 
 
 MICRO_CONFIG = '''train:
-  geometry: {iterations: 16, batch_rays: 128}
-  semantic: {iterations: 8, batch_rays: 128}
-  instance: {iterations: 8, groups: 2, group_size: 3, pixels_per_fruit: 8}
+  geometry: {iterations: 10, batch_rays: 128}
+  semantic: {iterations: 4, batch_rays: 128}
+  instance: {iterations: 4, groups: 2, group_size: 3, pixels_per_fruit: 8}
   render: {occupancy_update_every: 2, chunk_rays: 2048}
   data: {eval_every: 5}
   checkpoint_every: 4
