@@ -10,6 +10,9 @@ Example::
         --row-standoff 2.0 --camera-height 1.2 --camera-pitch 5 --fy-scale 1.02 --principal-offset 3 -2 \\
         --distortion -0.15 0.03 0.001 -0.001 --bag-image-format jpeg --world-frame odom --out row --bag row_bag
 
+    # an RGB-D camera: depths/ (16-bit mm) and a 16UC1 depth topic, with a stereo camera's errors
+    fruitnerfpp synth --fruit apple --count 20 --views 48 --resolution 96 --depth --out rgbd --bag rgbd_bag
+
 Every flag overrides the same-named field of :class:`~fruitnerfpp_ros.core.synthetic.SynthConfig` (and of
 ``--config`` YAML); a flag left out keeps the YAML's or the default value.
 """
@@ -114,6 +117,12 @@ _FLAGS = (
           'raw (Image rgb8, default) or jpeg (CompressedImage on /camera/image_raw/compressed)'),
     _Flag('--jpeg-quality', 'bag_jpeg_quality', _int, 'JPEG quality 1..100 of --bag-image-format jpeg (default 90)'),
     _Flag('--world-frame', 'world_frame', _text, 'fixed frame of the bag: pose header and /tf parent (default map)'),
+    _Flag('--depth-baseline', 'depth_baseline_m', _float, 'depth: stereo baseline, m (default 0.05)'),
+    _Flag('--depth-focal', 'depth_focal_px', _float,
+          'depth: focal length of the depth sensor, its own pixels (default 640)'),
+    _Flag('--depth-disparity-noise', 'depth_disparity_noise_px', _float,
+          'depth: stereo disparity noise, px (default 0.08): sigma(z) = noise z^2 / (focal baseline)'),
+    _Flag('--depth-max-range', 'depth_max_range_m', _float, 'depth: farthest return, m (default 6)'),
 )
 
 
@@ -125,6 +134,10 @@ def register(subparsers: Any) -> None:
                     'masks), gt_fruits.json and sparse_pc.ply; optionally a rosbag2 recording and a preview.')
     for flag in _FLAGS:
         parser.add_argument(flag.flag, dest=flag.field, help=flag.help, nargs=flag.nargs, metavar=flag.metavar)
+    parser.add_argument('--depth', nargs='?', const='stereo', metavar='MODEL',
+                        help='also write depth images aligned to the colour images (depths/, and a 16UC1 depth topic '
+                             'in the bag): stereo (the default model: noise growing with range squared, holes at '
+                             'depth edges and on leaves, a maximum range), exact, or random (garbage)')
     parser.add_argument('--pose-noise', nargs=2, metavar=('METRES', 'DEGREES'),
                         help='odometry error: per-axis standard deviations of noise on the recorded camera positions '
                              'and orientations (images stay rendered from the true poses)')
@@ -152,6 +165,8 @@ def _config_from_args(args: argparse.Namespace) -> Any:
         value = getattr(args, flag.field)
         if value is not None:
             overrides[flag.field] = flag.convert(value, flag.flag)
+    if args.depth is not None:
+        overrides['depth'] = args.depth
     if args.pose_noise is not None:
         try:
             overrides['pose_noise_m'], overrides['pose_noise_deg'] = (float(v) for v in args.pose_noise)

@@ -6,6 +6,10 @@ views. Semantic masks are read when the frames name them, else derived from the 
 Distorted cameras (``k1``... in transforms.json, ``camera_model`` OPENCV or OPENCV_FISHEYE) are undistorted here,
 keeping their camera matrix; pixels that then hold no data, and pixels a frame's ``mask_path`` marks 0, are
 invalid: ``SceneDataset.valid_masks`` marks them, and the masks hold no fruit there.
+
+Depth (optional, per frame ``depth_file_path``): an image aligned to the RGB image, z along the optical axis in
+units of ``depth_unit_scale_factor`` metres; 0, NaN and negative values are no return. It goes through the same
+undistortion as the masks (nearest neighbour: depths never blend across an edge) and is 0 on invalid pixels.
 """
 
 from __future__ import annotations
@@ -41,6 +45,8 @@ class SceneDataset:
         file_paths: the V images as transforms.json names them.
         valid_masks: [V, H, W] bool, False where a pixel holds no data (an undistorted image's border, a frame's
             ``mask_path``); None when every pixel is valid.
+        depths: [V, H, W] float32 depth along the optical axis, metres, 0 = no return (and for views without a
+            depth image); None when no frame has one.
     """
 
     dataset_dir: Path
@@ -54,6 +60,7 @@ class SceneDataset:
     ply_path: Path | None
     file_paths: tuple[str, ...] = ()
     valid_masks: torch.Tensor | None = None
+    depths: torch.Tensor | None = None
 
     @property
     def num_views(self) -> int:
@@ -101,6 +108,20 @@ def _read_rgb(path: Path) -> np.ndarray:
     return image[..., 2::-1].astype(np.float32) / scale
 
 
+def _read_depth(path: Path, unit_m: float, size: tuple[int, int], image_path: Path) -> np.ndarray:
+    """[H, W] float32 metres of a depth image (16-bit or float, ``unit_m`` metres per unit); 0 = no return."""
+    raw = _read_image(path, flags=cv2.IMREAD_UNCHANGED, what='depth image')
+    if raw.ndim != 2 or raw.dtype not in (np.uint16, np.float32, np.float64):
+        channels = 1 if raw.ndim == 2 else raw.shape[2]
+        raise DatasetError(f'{path}: depth image is {channels}-channel {raw.dtype}; expected one channel of 16-bit '
+                           'integers (e.g. millimetres) or floats')
+    if raw.shape != size:
+        raise DatasetError(f'{path}: depth image is {raw.shape[1]}x{raw.shape[0]} but image {image_path} is '
+                           f'{size[1]}x{size[0]}; depth must be aligned to the colour image (same size and camera)')
+    metres = raw.astype(np.float32) * np.float32(unit_m)
+    return np.where(np.isfinite(metres) & (metres > 0), metres, np.float32(0.0))
+
+
 def _read_label_mask(path: Path, what: str) -> np.ndarray:
     mask = _read_image(path, flags=cv2.IMREAD_UNCHANGED, what=what)
     if mask.ndim == 3:  # colour-coded masks: use the first channel (ids < 256)
@@ -138,13 +159,14 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
         require_instances: raise when a frame lacks ``instance_path`` (instance training needs them).
 
     Raises:
-        DatasetError: naming the file, for a missing/undecodable image or mask, an image/mask size mismatch,
+        DatasetError: naming the file, for a missing/undecodable image, mask or depth image, an image/mask/depth
+            size mismatch, a depth image that is not one channel of 16-bit integers or floats,
             views of different sizes, a non-finite pose, or a dataset without frames.
     """
     dataset_dir = Path(dataset_dir)
     transforms: TransformsFile = read_transforms(dataset_dir)
     undistorter_of = _Undistorters(str(transforms.extra.get('camera_model', 'OPENCV')), dataset_dir / 'transforms.json')
-    images, instances, semantics, intrinsics, poses, valids = [], [], [], [], [], []
+    images, instances, semantics, intrinsics, poses, valids, depths = [], [], [], [], [], [], []
     shape: tuple[int, int] | None = None
     for index, frame in enumerate(transforms.frames):
         image_path = dataset_dir / frame.file_path
@@ -184,14 +206,20 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
             if valid.shape != size:
                 raise DatasetError(f'{dataset_dir / frame.mask_path}: pixel mask is {valid.shape[1]}x'
                                    f'{valid.shape[0]} but image {image_path} is {size[1]}x{size[0]}')
+        depth = None
+        if frame.depth_path is not None:
+            depth = _read_depth(dataset_dir / frame.depth_path, transforms.depth_unit_m, size, image_path)
         undistorter = undistorter_of(cam)
         if undistorter is not None:
             rgb, instance = undistorter.image(rgb), undistorter.labels(instance)
             semantic = undistorter.labels(semantic.astype(np.uint8)) > 0
             valid = undistorter.labels(valid.astype(np.uint8)) > 0
+            depth = None if depth is None else undistorter.labels(depth)
         if not valid.all():
             instance = np.where(valid, instance, 0)
             semantic = semantic & valid
+            depth = None if depth is None else np.where(valid, depth, np.float32(0.0))
+        depths.append(depth)
         images.append(rgb)
         valids.append(valid)
         instances.append(instance)
@@ -214,4 +242,13 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
         ply_path=ply_path,
         file_paths=tuple(frame.file_path for frame in transforms.frames),
         valid_masks=None if all(v.all() for v in valids) else torch.from_numpy(np.stack(valids)),
+        depths=_stacked_depths(depths),
     )
+
+
+def _stacked_depths(depths: list[np.ndarray | None]) -> torch.Tensor | None:
+    """[V, H, W] float32 of the views' depths (zeros for a view without one), None when no view has depth."""
+    shape = next((d.shape for d in depths if d is not None), None)
+    if shape is None:
+        return None
+    return torch.from_numpy(np.stack([np.zeros(shape, np.float32) if d is None else d for d in depths]))

@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, FrameEntry
+from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, FrameEntry, depth_path_of
 from fruitnerfpp_ros.errors import DatasetError
 
 __all__ = ['JOURNAL_NAME', 'JournalEntry', 'append_entry', 'read_entries', 'trim_torn_tail']
@@ -89,7 +89,7 @@ def _frame_from_json(raw: Any, where: str) -> FrameEntry:
     own = CameraIntrinsics.from_json(raw, where) if any(k in raw for k in _INTRINSIC_KEYS) else None
     stamp = raw.get('stamp_ns')
     return FrameEntry(str(raw['file_path']), T, raw.get('instance_path'), raw.get('semantic_path'), own,
-                      None if stamp is None else int(stamp), raw.get('mask_path'))
+                      None if stamp is None else int(stamp), raw.get('mask_path'), depth_path_of(raw))
 
 
 def read_entries(directory: Path) -> list[JournalEntry]:

@@ -11,6 +11,7 @@ image is sharp, and writes it immediately (so a crash loses nothing collected)::
         images/000000.png     RGB
         instances/000000.png  16-bit instance ids (0 = background)
         semantics/000000.png  fruit = 255
+        depths/000000.png     (RGB-D cameras) 16-bit depth in millimetres aligned to the image, 0 = no return
 
 Storing a keyframe costs O(1) however many there are (a journal line, not a rewritten index). A keyframe is
 stored whole or not at all: when a write fails (a full disk), its files are removed, the store raises a
@@ -36,6 +37,7 @@ from typing import Callable, NamedTuple
 import cv2
 import numpy as np
 
+from fruitnerfpp_ros.core.data.depth_image import DEPTH_PNG_UNIT_M, write_depth_png
 from fruitnerfpp_ros.core.data.keyframe_journal import JournalEntry, append_entry, read_entries, trim_torn_tail
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
 from fruitnerfpp_ros.core.data.transforms_format import (TRANSFORMS_NAME, CameraIntrinsics, FrameEntry,
@@ -83,6 +85,8 @@ class Keyframe(NamedTuple):
         intrinsics: pinhole intrinsics in the transforms.json convention (top-left image corner at 0, 0).
         valid: [H, W] bool, False on pixels without data (the border of an undistorted image); None = all valid.
             Stored as the frame's ``mask_path`` (nerfstudio's pixel mask), so training never samples them.
+        depth: [H, W] float32 depth along the optical axis aligned to ``rgb`` (undistorted like it), metres,
+            0 = no return; None = no depth for this frame. Stored as ``depth_file_path`` (16-bit millimetres).
     """
 
     stamp_ns: int
@@ -91,6 +95,7 @@ class Keyframe(NamedTuple):
     T_world_optical: np.ndarray
     intrinsics: CameraIntrinsics
     valid: np.ndarray | None = None
+    depth: np.ndarray | None = None
 
 
 class KeyframeSnapshot(NamedTuple):
@@ -265,18 +270,25 @@ class KeyframeStore:
         index = len(self._frames)  # frames are only ever appended (reset starts a new folder)
         name = f'{index:06d}.png'
         instance = np.asarray(keyframe.instance, dtype=np.uint16)
-        paths = [self.directory / sub / name for sub in ('images', 'instances', 'semantics', 'masks')]
+        paths = [self.directory / sub / name for sub in ('images', 'instances', 'semantics', 'masks', 'depths')]
         partial = keyframe.valid is not None and not bool(np.all(keyframe.valid))
         intrinsics = self._intrinsics or keyframe.intrinsics
         own = None if keyframe.intrinsics == intrinsics else keyframe.intrinsics
+        if keyframe.depth is not None and np.shape(keyframe.depth) != keyframe.rgb.shape[:2]:
+            (h, w), shape = keyframe.rgb.shape[:2], np.shape(keyframe.depth)
+            raise DatasetError(f'keyframe at {keyframe.stamp_ns} ns: depth is {shape[1]}x{shape[0]} but the image '
+                               f'is {w}x{h}; depth must be aligned to the colour image')
         entry = FrameEntry(f'images/{name}', opengl_from_optical(keyframe.T_world_optical), f'instances/{name}',
-                           f'semantics/{name}', own, int(keyframe.stamp_ns), f'masks/{name}' if partial else None)
+                           f'semantics/{name}', own, int(keyframe.stamp_ns), f'masks/{name}' if partial else None,
+                           None if keyframe.depth is None else f'depths/{name}')
         try:
             write_rgb_png(paths[0], keyframe.rgb)
             write_uint16_png(paths[1], instance)
             write_mask_png(paths[2], instance > 0)
             if partial:
                 write_mask_png(paths[3], keyframe.valid)
+            if keyframe.depth is not None:
+                write_depth_png(paths[4], keyframe.depth)
             _check_complete([p for p in paths if p.exists()])  # OpenCV may report a cut file as written
             append_entry(self.directory, JournalEntry(index, entry, intrinsics if index == 0 else None))
         except (OSError, DatasetError) as err:
@@ -326,7 +338,9 @@ class KeyframeStore:
             self._write_index(force=True)
 
     def _transforms(self, frames: list[FrameEntry]) -> TransformsFile:
-        return TransformsFile(self._intrinsics, frames, extra={'generator': 'fruitnerfpp_ros keyframes'})
+        depth_unit = DEPTH_PNG_UNIT_M if any(f.depth_path for f in frames) else None
+        return TransformsFile(self._intrinsics, frames, extra={'generator': 'fruitnerfpp_ros keyframes'},
+                              depth_unit_scale_factor=depth_unit)
 
     def snapshot(self, dataset_dir: str | Path) -> KeyframeSnapshot:
         """Write a frozen transforms.json in ``dataset_dir`` that points at the current keyframes' files.
@@ -348,7 +362,8 @@ class KeyframeStore:
             frames = [FrameEntry(str(prefix / f.file_path), f.T_world_camera,
                                  str(prefix / f.instance_path) if f.instance_path else None,
                                  str(prefix / f.semantic_path) if f.semantic_path else None,
-                                 f.intrinsics, f.stamp_ns, str(prefix / f.mask_path) if f.mask_path else None)
+                                 f.intrinsics, f.stamp_ns, str(prefix / f.mask_path) if f.mask_path else None,
+                                 str(prefix / f.depth_path) if f.depth_path else None)
                       for f in self._frames]
             write_transforms(dataset_dir, self._transforms(frames))
             latest = max(f.stamp_ns or 0 for f in self._frames)

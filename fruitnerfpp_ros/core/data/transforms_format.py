@@ -7,6 +7,9 @@ Layout of a dataset directory::
     instances/0000.png        # 16-bit instance ids, 0 = background, k = fruit k (per-image labels)
     semantics/0000.png        # fruit = 255, rest = 0 (optional: derived from instances when absent)
     masks/0000.png            # optional pixel mask (``mask_path``, 0 = no data), e.g. an undistorted frame's border
+    depths/0000.png           # optional depth aligned to the image (``depth_file_path``): 16-bit, z along the optical
+                              # axis in units of ``depth_unit_scale_factor`` metres (default 0.001: millimetres);
+                              # 0 = no return. A float image (e.g. 32-bit TIFF) is read in the same unit.
     gt_fruits.json            # optional ground truth (synthetic data)
     sparse_pc.ply             # optional sparse geometry (``ply_file_path``), used for scene bounds
 
@@ -28,9 +31,14 @@ from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.errors import DatasetError
 
 __all__ = ['CameraIntrinsics', 'FrameEntry', 'TransformsFile', 'read_transforms', 'write_transforms',
-           'TRANSFORMS_NAME']
+           'TRANSFORMS_NAME', 'DEFAULT_DEPTH_UNIT_M', 'depth_path_of']
 
 TRANSFORMS_NAME = 'transforms.json'
+#: Metres per stored depth unit when transforms.json gives no ``depth_unit_scale_factor`` (nerfstudio's default:
+#: millimetres, as RealSense / ZED / OAK-D 16UC1 depth images hold them).
+DEFAULT_DEPTH_UNIT_M = 1e-3
+#: Frame keys naming a depth image: nerfstudio's ``depth_file_path`` (written) and ``depth_path`` (read too).
+_DEPTH_KEYS = ('depth_file_path', 'depth_path')
 _INTRINSIC_KEYS = ('fl_x', 'fl_y', 'cx', 'cy', 'w', 'h')
 _DISTORTION_KEYS = ('k1', 'k2', 'k3', 'k4', 'p1', 'p2')
 
@@ -85,6 +93,7 @@ class FrameEntry:
         intrinsics: per-frame intrinsics overriding the global ones, or None.
         stamp_ns: acquisition time in nanoseconds (ROS keyframes), or None.
         mask_path: nerfstudio's pixel mask (0 = no data: never trained on or evaluated), relative path, or None.
+        depth_path: depth image aligned to the RGB image (``depth_file_path``), relative path, or None.
     """
 
     file_path: str
@@ -94,6 +103,7 @@ class FrameEntry:
     intrinsics: CameraIntrinsics | None = None
     stamp_ns: int | None = None
     mask_path: str | None = None
+    depth_path: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         out: dict[str, Any] = {'file_path': self.file_path,
@@ -108,7 +118,17 @@ class FrameEntry:
             out['stamp_ns'] = int(self.stamp_ns)
         if self.mask_path is not None:
             out['mask_path'] = self.mask_path
+        if self.depth_path is not None:
+            out['depth_file_path'] = self.depth_path
         return out
+
+
+def depth_path_of(raw: dict[str, Any]) -> str | None:
+    """The depth image a raw transforms.json frame names (``depth_file_path`` or ``depth_path``), or None."""
+    for key in _DEPTH_KEYS:
+        if raw.get(key):
+            return str(raw[key])
+    return None
 
 
 @dataclass
@@ -120,12 +140,20 @@ class TransformsFile:
         frames: frames in file order.
         ply_file_path: optional sparse point cloud (relative path) for scene bounds.
         extra: other top-level keys, kept as they are (e.g. ``fruit_types``, ``generator``).
+        depth_unit_scale_factor: metres per unit of the depth images (``depth_unit_scale_factor``, written when
+            set); None = :data:`DEFAULT_DEPTH_UNIT_M`.
     """
 
     intrinsics: CameraIntrinsics | None
     frames: list[FrameEntry]
     ply_file_path: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    depth_unit_scale_factor: float | None = None
+
+    @property
+    def depth_unit_m(self) -> float:
+        """Metres per stored depth unit."""
+        return DEFAULT_DEPTH_UNIT_M if self.depth_unit_scale_factor is None else self.depth_unit_scale_factor
 
     def intrinsics_of(self, index: int) -> CameraIntrinsics:
         """Intrinsics of frame ``index`` (its own, else the global ones)."""
@@ -142,6 +170,8 @@ class TransformsFile:
             out.update(self.intrinsics.to_json())
         if self.ply_file_path is not None:
             out['ply_file_path'] = self.ply_file_path
+        if self.depth_unit_scale_factor is not None:
+            out['depth_unit_scale_factor'] = float(self.depth_unit_scale_factor)
         out['frames'] = [f.to_json() for f in self.frames]
         return out
 
@@ -182,10 +212,21 @@ def read_transforms(dataset_dir: str | Path) -> TransformsFile:
         if own is None and intrinsics is None:
             raise DatasetError(f'{where} ({raw["file_path"]}): no intrinsics (neither global nor per frame)')
         frames.append(FrameEntry(str(raw['file_path']), T, raw.get('instance_path'), raw.get('semantic_path'),
-                                 own, raw.get('stamp_ns'), raw.get('mask_path')))
-    known = set(_INTRINSIC_KEYS) | set(_DISTORTION_KEYS) | {'frames', 'ply_file_path'}
+                                 own, raw.get('stamp_ns'), raw.get('mask_path'), depth_path_of(raw)))
+    known = set(_INTRINSIC_KEYS) | set(_DISTORTION_KEYS) | {'frames', 'ply_file_path', 'depth_unit_scale_factor'}
     extra = {k: v for k, v in data.items() if k not in known}
-    return TransformsFile(intrinsics, frames, data.get('ply_file_path'), extra)
+    return TransformsFile(intrinsics, frames, data.get('ply_file_path'), extra, _depth_unit(data, path))
+
+
+def _depth_unit(data: dict[str, Any], path: Path) -> float | None:
+    """``depth_unit_scale_factor`` of a transforms.json (metres per depth unit), checked; None when absent."""
+    value = data.get('depth_unit_scale_factor')
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < float(value) < 1e3:
+        raise DatasetError(f'{path}: depth_unit_scale_factor must be a positive number of metres per depth unit '
+                           f'(0.001 for millimetres), got {value!r}')
+    return float(value)
 
 
 def write_transforms(dataset_dir: str | Path, transforms: TransformsFile) -> Path:

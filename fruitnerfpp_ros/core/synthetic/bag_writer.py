@@ -10,6 +10,8 @@ Topics (identical header stamps per frame; images carry frame_id ``camera_optica
                              plumb_bob D = [k1, k2, p1, p2, k3] (zeros for an undistorted camera)
 - ``/camera/pose``           geometry_msgs/msg/PoseStamped, pose of ``camera_optical`` in ``world`` (REP-103 axes)
 - ``/camera/instance_mask``  sensor_msgs/msg/Image, mono16 instance ids (0 = background; never compressed)
+- ``/camera/aligned_depth_to_color/image_raw``  (``depth=True``) sensor_msgs/msg/Image, 16UC1 depth in millimetres
+                             aligned to the colour image (0 = no return), as realsense2_camera publishes it
 - ``/tf``                    tf2_msgs/msg/TFMessage, ``world`` -> ``base_link``
 - ``/tf_static``             tf2_msgs/msg/TFMessage, ``base_link`` -> ``camera_optical`` (once, latched QoS)
 
@@ -30,6 +32,7 @@ from rosbags.rosbag2 import StoragePlugin, Writer
 from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
+from fruitnerfpp_ros.core.data.depth_image import depth_units_from_metres
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics
 from fruitnerfpp_ros.core.synthetic.lens import distortion_coefficients
 from fruitnerfpp_ros.core.geometry import (invert_transform, optical_from_opengl,
@@ -38,7 +41,7 @@ from fruitnerfpp_ros.errors import SynthError
 
 __all__ = ['BagWriter', 'TOPICS', 'T_BASE_LINK_CAMERA_OPTICAL', 'BAG_START_NS', 'FRAME_PERIOD_NS',
            'MAP_FRAME', 'BASE_FRAME', 'CAMERA_FRAME', 'STORAGES', 'COMPRESSED_IMAGE_TOPIC', 'JPEG_FORMAT',
-           'image_topic']
+           'DEPTH_TOPIC', 'image_topic']
 
 TOPICS = {
     'image': '/camera/image_raw',
@@ -50,6 +53,8 @@ TOPICS = {
 }
 #: The JPEG image topic: image_transport's name for the compressed transport of ``TOPICS['image']``.
 COMPRESSED_IMAGE_TOPIC = TOPICS['image'] + '/compressed'
+#: The depth topic of a bag written with ``depth=True`` (realsense2_camera's aligned depth).
+DEPTH_TOPIC = '/camera/aligned_depth_to_color/image_raw'
 #: ``CompressedImage.format`` as compressed_image_transport writes it for an rgb8 image encoded as JPEG.
 JPEG_FORMAT = 'rgb8; jpeg compressed bgr8'
 MAP_FRAME, BASE_FRAME, CAMERA_FRAME = 'map', 'base_link', 'camera_optical'
@@ -88,13 +93,14 @@ class BagWriter:
             ``/camera/image_raw/compressed``).
         jpeg_quality: 1..100, for ``jpeg``.
         world_frame: fixed frame of the pose topic and parent of ``base_link`` on /tf.
+        depth: also write depth images on :data:`DEPTH_TOPIC` (16UC1 millimetres).
 
     Raises:
         SynthError: unknown storage or image format, or ``path`` exists and is not a bag, or cannot be written.
     """
 
     def __init__(self, path: str | Path, storage: str = 'mcap', *, image_format: str = 'raw', jpeg_quality: int = 90,
-                 world_frame: str = MAP_FRAME) -> None:
+                 world_frame: str = MAP_FRAME, depth: bool = False) -> None:
         if storage not in STORAGES:
             raise SynthError(f'unknown bag storage {storage!r}; expected one of {", ".join(STORAGES)}')
         if image_format not in ('raw', 'jpeg'):
@@ -106,6 +112,8 @@ class BagWriter:
         self.world_frame = world_frame
         #: Topic of each role in this bag (``image`` depends on the image format).
         self.topics = {**TOPICS, 'image': image_topic(image_format)}
+        if depth:
+            self.topics['depth'] = DEPTH_TOPIC
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         self._writer: Writer | None = None
         self._conns: dict[str, Any] = {}
@@ -134,6 +142,8 @@ class BagWriter:
             'tf_static': w.add_connection(topics['tf_static'], 'tf2_msgs/msg/TFMessage', typestore=ts,
                                           offered_qos_profiles=[_LATCHED_QOS]),
         }
+        if 'depth' in topics:
+            self._conns['depth'] = w.add_connection(topics['depth'], 'sensor_msgs/msg/Image', typestore=ts)
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
@@ -199,10 +209,11 @@ class BagWriter:
         self._writer.write(conn, stamp_ns, self.typestore.serialize_cdr(msg, conn.msgtype))
 
     def write_frame(self, stamp_ns: int, rgb: np.ndarray, instance: np.ndarray, T_world_camera: np.ndarray,
-                    K: CameraIntrinsics) -> None:
+                    K: CameraIntrinsics, depth: np.ndarray | None = None) -> None:
         """Write one frame: RGB [H, W, 3] uint8, instance ids [H, W] uint16, camera-to-world pose in OpenGL axes
         (transforms.json convention) and transforms.json intrinsics (top-left-corner principal point; its
-        ``distortion`` k1, k2, p1, p2, k3 go into CameraInfo's D)."""
+        ``distortion`` k1, k2, p1, p2, k3 go into CameraInfo's D); ``depth`` [H, W] metres (0 = no return) when the
+        writer was opened with ``depth=True``."""
         T_world_optical = optical_from_opengl(T_world_camera)
         types = self.typestore.types
         if not self._static_written:
@@ -221,3 +232,5 @@ class BagWriter:
             else self._image(stamp_ns, rgb.astype(np.uint8), 'rgb8')
         self._write('image', stamp_ns, image)
         self._write('instance_mask', stamp_ns, self._image(stamp_ns, instance.astype(np.uint16), 'mono16'))
+        if depth is not None and 'depth' in self._conns:
+            self._write('depth', stamp_ns, self._image(stamp_ns, depth_units_from_metres(depth), '16UC1'))

@@ -14,11 +14,13 @@ from dataclasses import dataclass
 from fruitnerfpp_ros.core.synthetic.fruit_types import FRUIT_NAMES, MIXED
 from fruitnerfpp_ros.errors import SynthError
 
-__all__ = ['SynthConfig', 'TRAJECTORIES', 'BAG_IMAGE_FORMATS', 'MIXED_DEFAULT_COUNT']
+__all__ = ['SynthConfig', 'TRAJECTORIES', 'BAG_IMAGE_FORMATS', 'MIXED_DEFAULT_COUNT', 'DEPTH_MODELS']
 
 TRAJECTORIES = ('hemisphere', 'row')
 #: Image encodings of the bag's camera topic: raw ``sensor_msgs/Image`` rgb8 or JPEG ``CompressedImage``.
 BAG_IMAGE_FORMATS = ('raw', 'jpeg')
+#: Depth camera models (``depth_sensor.py``): none, the rendered depth, a stereo camera's errors, garbage.
+DEPTH_MODELS = ('none', 'exact', 'stereo', 'random')
 #: Default fruit count of a ``mixed`` tree (split evenly over the six types).
 MIXED_DEFAULT_COUNT = 240
 _FRAME_NAME = re.compile(r'^[A-Za-z_][A-Za-z0-9_/]*$')
@@ -110,6 +112,19 @@ class SynthConfig:
     """JPEG quality 1..100 of ``bag_image_format: jpeg``."""
     world_frame: str = 'map'
     """Fixed frame of the bag: PoseStamped header and the /tf parent of ``base_link`` (e.g. map, odom)."""
+    depth: str = 'none'
+    """A depth camera aligned to the colour camera (``depth_sensor.py``): ``none``; ``stereo`` (range noise
+    growing with range squared, holes at depth edges and on thin leaves, a maximum range); ``exact`` (the rendered
+    depth); ``random`` (garbage). Written as depths/NNNN.png (16-bit millimetres, ``depth_file_path``) and, with a
+    bag, as 16UC1 on /camera/aligned_depth_to_color/image_raw; ``none`` leaves every other file unchanged."""
+    depth_baseline_m: float = 0.05
+    """Stereo baseline b (m) of the ``stereo`` model: sigma(z) = k z^2 / (f b)."""
+    depth_focal_px: float = 640.0
+    """Focal length f of the depth sensor in its own pixels (a 1280x720 stereo pair: ~640)."""
+    depth_disparity_noise_px: float = 0.08
+    """Disparity noise k (px) of the stereo matcher."""
+    depth_max_range_m: float = 6.0
+    """Farthest depth the sensor returns, metres."""
 
     def __post_init__(self) -> None:
         known = (*FRUIT_NAMES, MIXED)
@@ -147,6 +162,12 @@ class SynthConfig:
         if not isinstance(self.world_frame, str) or not _FRAME_NAME.match(self.world_frame):
             raise SynthError(f'world_frame must be a ROS frame name like map or odom (letters, digits, _ and /, '
                              f'no leading /), got {self.world_frame!r}')
+        if self.depth not in DEPTH_MODELS:
+            raise SynthError(f'unknown depth model {self.depth!r}; expected one of {", ".join(DEPTH_MODELS)}')
+        _number(self, 'depth_baseline_m', 0.005, 2.0)
+        _number(self, 'depth_focal_px', 10.0, 1e5)
+        _number(self, 'depth_disparity_noise_px', 0.0, 10.0)
+        _number(self, 'depth_max_range_m', 0.5, 1000.0)
 
     def _check_row_and_camera(self) -> None:
         _number(self, 'row_standoff_m', 0.3, 50.0)

@@ -8,6 +8,9 @@ Output directory::
     images/0000.png     RGB (distorted like the lens when ``distortion`` is set)
     instances/0000.png  uint16 instance ids (0 = background, k = fruit k of gt_fruits.json), from the same pixel rays
     semantics/0000.png  fruit = 255, rest = 0
+    depths/0000.png     (``depth`` other than none) 16-bit depth in millimetres along the optical axis, aligned to the
+                        image (distorted like it), 0 = no return; ``depth_file_path`` per frame and
+                        ``depth_unit_scale_factor`` 0.001 in transforms.json (depth_sensor.py: the sensor model)
     gt_fruits.json      {"fruits": [{"id", "type", "center", "radii", "diameter", "rotation", "views_visible",
                         "n_views_visible"}]}: views_visible lists every view (training and held-out alike: the
                         generator knows no split) showing at least one pixel of the fruit
@@ -25,6 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.config_io import config_to_mapping
+from fruitnerfpp_ros.core.data.depth_image import DEPTH_PNG_UNIT_M, write_depth_png
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, FrameEntry, TransformsFile, write_transforms
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.geometry import T_OPENGL_OPTICAL
@@ -34,6 +38,7 @@ from fruitnerfpp_ros.core.synthetic.bag_writer import BAG_START_NS, FRAME_PERIOD
 from fruitnerfpp_ros.core.synthetic.cameras import make_intrinsics, make_poses
 from fruitnerfpp_ros.core.synthetic.config import SynthConfig
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
+from fruitnerfpp_ros.core.synthetic.depth_sensor import sensed_depth
 from fruitnerfpp_ros.core.synthetic.dataset_writer import GT_NAME, SPARSE_PLY_NAME, write_gt_fruits, write_sparse_ply
 from fruitnerfpp_ros.core.synthetic.lens import is_distorted, undistorted_pixel_grid
 from fruitnerfpp_ros.core.synthetic.preview import preview_view_indices, write_preview
@@ -71,17 +76,18 @@ class SynthResult:
     seconds: float
 
 
-def _prepare_out_dir(out_dir: Path, n_views: int) -> None:
+def _prepare_out_dir(out_dir: Path, n_views: int, depth: bool) -> None:
     try:
         if out_dir.exists() and not out_dir.is_dir():
             raise SynthError(f'output path {out_dir} exists and is not a directory')
-        for sub in ('images', 'instances', 'semantics'):
+        subs = ('images', 'instances', 'semantics') + (('depths',) if depth else ())
+        for sub in subs:
             (out_dir / sub).mkdir(parents=True, exist_ok=True)
         probe = out_dir / '.write_test'
         probe.write_bytes(b'')
         probe.unlink()
         # Frames of an earlier, larger run would otherwise linger next to this run's frames.
-        for sub in ('images', 'instances', 'semantics'):
+        for sub in subs:
             for stale in (out_dir / sub).glob('[0-9][0-9][0-9][0-9].png'):
                 if int(stale.stem) >= n_views:
                     stale.unlink()
@@ -109,7 +115,8 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     started = time.perf_counter()
     progress = progress or ignore_progress
     out_dir = Path(out_dir)
-    _prepare_out_dir(out_dir, config.views)
+    with_depth = config.depth != 'none'
+    _prepare_out_dir(out_dir, config.views, with_depth)
     try:
         device = resolve_device(config.device)
     except ConfigError as err:
@@ -126,13 +133,14 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
         if preview is not None else set()
     preview_rgb, preview_inst, preview_labels = [], [], []
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9C]))
+    depth_rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9E]))  # the depth sensor's own stream
     per_view = int(np.ceil(config.sparse_points / config.views)) if config.sparse_points else 0
     recorded = _noisy_poses(poses, config)
     pc_points, pc_colors = [], []
     frames = []
     bag_ctx = contextlib.nullcontext() if bag is None else BagWriter(
         bag, bag_storage, image_format=config.bag_image_format, jpeg_quality=config.bag_jpeg_quality,
-        world_frame=config.world_frame)
+        world_frame=config.world_frame, depth=with_depth)
     progress(ProgressEvent(Phase.SYNTH_RENDER, 0, config.views, f'{n_fruits} fruits'))
     with bag_ctx as bag_writer:
         for i, T in enumerate(poses):
@@ -143,15 +151,22 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
             write_mask_png(out_dir / 'semantics' / name, view.instance > 0)
             visible[i] = np.bincount(view.instance.reshape(-1).astype(np.int64), minlength=n_fruits + 1) > 0
             stamp_ns = BAG_START_NS + i * FRAME_PERIOD_NS
+            depth = None
+            if with_depth:
+                depth = sensed_depth(view.depth, view.surface, config.depth, depth_rng,
+                                     max_range_m=config.depth_max_range_m,
+                                     disparity_noise_px=config.depth_disparity_noise_px,
+                                     focal_px=config.depth_focal_px, baseline_m=config.depth_baseline_m)
+                write_depth_png(out_dir / 'depths' / name, depth)
             frames.append(FrameEntry(f'images/{name}', recorded[i], f'instances/{name}', f'semantics/{name}',
-                                     stamp_ns=stamp_ns))
+                                     stamp_ns=stamp_ns, depth_path=f'depths/{name}' if with_depth else None))
             if per_view:
                 pts, cols = _sample_surface(view.depth, view.rgb, T, K, per_view, scene.bound_radius, rng,
                                             pixel_grid)
                 pc_points.append(pts)
                 pc_colors.append(cols)
             if bag_writer is not None:
-                bag_writer.write_frame(stamp_ns, view.rgb, view.instance, recorded[i], K)
+                bag_writer.write_frame(stamp_ns, view.rgb, view.instance, recorded[i], K, depth)
             if i in preview_idx:
                 preview_rgb.append(view.rgb)
                 preview_inst.append(view.instance)
@@ -166,10 +181,11 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     extra = {
         'camera_model': 'OPENCV',
         'fruit_types': sorted(counts),
-        'generator': {'name': 'fruitnerfpp synth', 'config': config_to_mapping(config)},
+        'generator': {'name': 'fruitnerfpp synth', 'config': _recorded_config(config)},
         'frame': 'world: z up, metres, ground at z = 0, tree trunk at the origin',
     }
-    transforms_path = write_transforms(out_dir, TransformsFile(K, frames, ply_name, extra))
+    transforms_path = write_transforms(out_dir, TransformsFile(K, frames, ply_name, extra,
+                                                               DEPTH_PNG_UNIT_M if with_depth else None))
     gt_path = out_dir / GT_NAME
     write_gt_fruits(gt_path, scene.fruits, visible[:, 1:], {
         'units': 'm', 'frame': 'world (z up, ground z = 0), same as transforms.json',
@@ -182,6 +198,15 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     return SynthResult(out_dir, n_fruits, config.views, gt_path, transforms_path,
                        Path(bag) if bag is not None else None, preview_path,
                        int(np.count_nonzero(visible[:, 1:].any(axis=0))), time.perf_counter() - started)
+
+
+def _recorded_config(config: SynthConfig) -> dict:
+    """The config as transforms.json records it; without a depth camera its depth_* settings are left out, so a
+    dataset without depth is byte-identical to one written before depth existed."""
+    mapping = config_to_mapping(config)
+    if config.depth == 'none':
+        mapping = {k: v for k, v in mapping.items() if not k.startswith('depth')}
+    return mapping
 
 
 def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> list[np.ndarray]:

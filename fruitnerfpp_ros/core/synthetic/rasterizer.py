@@ -30,7 +30,11 @@ from fruitnerfpp_ros.core.synthetic.primitives import Scene
 from fruitnerfpp_ros.core.synthetic.shading import Shader, value_noise
 from fruitnerfpp_ros.errors import SynthError
 
-__all__ = ['ViewRender', 'Renderer', 'value_noise']
+__all__ = ['ViewRender', 'Renderer', 'value_noise', 'SURFACE_FRUIT', 'SURFACE_LEAF', 'SURFACE_WOOD', 'SURFACE_GROUND',
+           'SURFACE_SKY']
+
+#: What a pixel shows (``ViewRender.surface``): the primitive kinds in their index order, then ground and sky.
+SURFACE_FRUIT, SURFACE_LEAF, SURFACE_WOOD, SURFACE_GROUND, SURFACE_SKY = range(5)
 
 _DEPTH_SCALE = float(2 ** 16)   # depth quantisation of the z-buffer key (1/65536 m)
 _INDEX_BITS = 24
@@ -45,11 +49,14 @@ class ViewRender(NamedTuple):
         rgb: [H, W, 3] uint8.
         instance: [H, W] uint16 fruit ids (0 = background).
         depth: [H, W] float32 depth along the optical axis, metres (inf = sky).
+        surface: [H, W] uint8 what each pixel shows: ``SURFACE_FRUIT``, ``SURFACE_LEAF``, ``SURFACE_WOOD`` (trunk
+            and branches), ``SURFACE_GROUND`` or ``SURFACE_SKY`` (the depth sensor model drops thin leaves).
     """
 
     rgb: np.ndarray
     instance: np.ndarray
     depth: np.ndarray
+    surface: np.ndarray | None = None
 
 
 def _box_corners(lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
@@ -237,7 +244,13 @@ class Renderer:
         winner = torch.where(keys == sky_key, torch.full_like(winner, self.shader.sky_index), winner)
         rgb, instance, depth = self.shader.shade(winner, o, dirs, t_ground)
         return ViewRender(rgb.reshape(K.h, K.w, 3).cpu().numpy(), instance.reshape(K.h, K.w).cpu().numpy(),
-                          depth.reshape(K.h, K.w).cpu().numpy())
+                          depth.reshape(K.h, K.w).cpu().numpy(), self._surface(winner).reshape(K.h, K.w))
+
+    def _surface(self, winner: torch.Tensor) -> np.ndarray:
+        """[P] uint8 surface kind of each pixel's z-buffer winner (see :class:`ViewRender`)."""
+        bounds = torch.as_tensor([*self.tensors.offsets[1:], self.tensors.total, self.shader.ground_index + 1],
+                                 device=winner.device)
+        return torch.bucketize(winner, bounds, right=True).to(torch.uint8).cpu().numpy()
 
     def _rasterise_pinhole(self, kind: int, T_world_optical: np.ndarray, K: CameraIntrinsics, rays: _Rays,
                            keys: torch.Tensor) -> None:
