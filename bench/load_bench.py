@@ -165,7 +165,7 @@ def run(args: argparse.Namespace) -> int:
         start = time.monotonic()
         period = 1.0 / args.rate
         rss: list[tuple[float, int, int]] = []
-        latencies: list[float] = []
+        latencies: list[tuple[float, float]] = []
         train_answer, train_at, keyframes_at_train = '', None, 0
         next_probe = next_sample = start
         k = 0
@@ -181,7 +181,8 @@ def run(args: argparse.Namespace) -> int:
                 rss.append((now - start, *_rss_kib(node.pid)))
                 next_sample += 1.0
             if now >= next_probe:
-                threading.Thread(target=lambda: latencies.append(bench.call(bench.save)[1]), daemon=True).start()
+                threading.Thread(target=lambda at=now - start: latencies.append((at, bench.call(bench.save)[1])),
+                                 daemon=True).start()
                 next_probe += 0.5
             if train_at is None and now - start >= args.duration * args.train_at:
                 answer, _ = bench.call(bench.train)
@@ -201,6 +202,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _state_at(states: list[tuple[float, str, int]], t: float) -> str:
+    before = [state for ts, state, _ in states if ts <= t]
+    return before[-1] if before else 'starting'
+
+
 def _phases(rss: list[tuple[float, int, int]], states: list[tuple[float, str]]) -> dict[str, float]:
     """Largest RSS (MiB) while collecting before ~/train, while the run trained, and after it ended."""
     def state_at(t: float) -> str:
@@ -218,7 +224,8 @@ def _phases(rss: list[tuple[float, int, int]], states: list[tuple[float, str]]) 
     return {name: max(v) / 1024 for name, v in phases.items() if v}
 
 
-def _report(args: argparse.Namespace, bench: Bench, rss: list[tuple[float, int, int]], latencies: list[float],
+def _report(args: argparse.Namespace, bench: Bench, rss: list[tuple[float, int, int]],
+            latencies: list[tuple[float, float]],
             train_at: float | None, train_answer: str, keyframes_at_train: int, elapsed: float, start: float,
             work: Path) -> None:
     last = bench.diagnostics[-1][1]
@@ -226,7 +233,8 @@ def _report(args: argparse.Namespace, bench: Bench, rss: list[tuple[float, int, 
              for key in last if key.startswith('rate_hz/')}
     states = [(t - start, d.get('state', ''), int(d.get('keyframes', 0))) for t, d, _ in bench.diagnostics]
     during = [kf for _, state, kf in states if state in ('training', 'exporting', 'counting')]
-    lat = np.array(latencies or [float('nan')])
+    lat = np.array([seconds for _, seconds in latencies] or [float('nan')])
+    slow = [f'{at:.0f} s ({seconds:.2f} s, {_state_at(states, at)})' for at, seconds in latencies if seconds > 0.5]
     received_images = int(last.get('received//camera/image_raw', 0))
     skipped = ', '.join(f'{k} {v}' for k, v in last.items() if k.startswith(('skipped/', 'rejected/')))
     print(f'# fruit_counter load: {args.width}x{args.height} rgb8 + mono16 masks + poses at {args.rate:g} Hz, '
@@ -243,7 +251,7 @@ def _report(args: argparse.Namespace, bench: Bench, rss: list[tuple[float, int, 
     print(f'| node RSS (max per phase) | {phases}; end {rss[-1][1] / 1024:.0f} MiB; peak (VmHWM) '
           f'{rss[-1][2] / 1024:.0f} MiB |')
     print(f'| ~/save answer time | median {np.median(lat) * 1e3:.0f} ms, p99 {np.percentile(lat, 99) * 1e3:.0f} ms, '
-          f'max {lat.max() * 1e3:.0f} ms over {len(latencies)} calls |')
+          f'max {lat.max() * 1e3:.0f} ms over {len(latencies)} calls; over 0.5 s at: {", ".join(slow) or "none"} |')
     if train_at is not None:
         print(f'| ~/train at {train_at:.0f} s | {train_answer} |')
         grown = max(during, default=keyframes_at_train) - keyframes_at_train
