@@ -7,7 +7,10 @@ footprint), **contradicts** (it lies clearly in front of what the neighbour sees
 or is **occluded** (behind the neighbour's surface: no evidence either way). A view's agreement is
 agree / (agree + contradict). Real depth agrees except at depth edges and along noise (0.8-1.0 on the synthetic
 scenes, stereo noise included); random or misaligned depth contradicts about as often as it lies behind (near 0).
-A view with too few decided points (no overlapping neighbour with depth) is kept: there is nothing against it.
+The worst view below the threshold is dropped, the others are scored again without it as a neighbour, and so on
+(a broken view's surfaces also contradict its good neighbours' points). A view with too few decided points (no
+overlapping neighbour with depth left) is kept: there is nothing against it. When more than half of the views
+are dropped, the sensor itself is broken and no view's depth is used.
 """
 
 from __future__ import annotations
@@ -55,7 +58,10 @@ class DepthViewCheck:
         median = f'{float(np.median(measured)):.2f}' if len(measured) else 'n/a'
         text = (f'depth of {int(self.used.sum())}/{len(self.views)} views agrees with the neighbouring views '
                 f'(median agreement {median}, threshold {self.min_agreement:.2f})')
-        if not self.used.all():
+        if len(self.views) and not self.used.any():
+            text += '; the depth disagrees between most views (a broken, misaligned or mis-scaled sensor): ' \
+                    'trained without depth'
+        elif not self.used.all():
             shown = ', '.join(map(str, self.rejected_views[:12])) + (' ...' if len(self.rejected_views) > 12 else '')
             text += f'; trained without the depth of views {shown}'
         return text
@@ -67,15 +73,16 @@ class DepthViewCheck:
                 'summary': self.summary()}
 
 
-def _neighbours(T_world_camera: torch.Tensor, views: torch.Tensor, count: int) -> torch.Tensor:
-    """[C, M] for each of ``views``, the ``count`` other views with the nearest camera centres among those facing
-    within 90 degrees of it (fewer available: repeats, masked by the caller through ``valid``)."""
+def _neighbours(T_world_camera: torch.Tensor, views: torch.Tensor, count: int) -> list[torch.Tensor]:
+    """For each of ``views``, up to ``count`` other views (indices into ``views``) with the nearest camera centres
+    among those facing within 90 degrees of it."""
     centres = T_world_camera[views, :3, 3]
     forward = -T_world_camera[views, :3, 2]  # OpenGL cameras look along -z
     distance = torch.cdist(centres, centres)
     distance = distance + torch.where((forward @ forward.T) > 0.0, 0.0, float('inf'))
     distance.fill_diagonal_(float('inf'))
-    return torch.topk(distance, k=min(count, len(views) - 1), largest=False).indices
+    nearest, index = torch.topk(distance, k=min(count, len(views) - 1), largest=False)
+    return [row[torch.isfinite(d)] for d, row in zip(nearest, index)]
 
 
 def check_depth_views(depths: torch.Tensor, T_world_camera: torch.Tensor, intrinsics: torch.Tensor,
@@ -95,23 +102,41 @@ def check_depth_views(depths: torch.Tensor, T_world_camera: torch.Tensor, intrin
     depths, poses, K = depths.float().cpu(), T_world_camera.float().cpu(), intrinsics.float().cpu()
     views = torch.nonzero((depths > 0).flatten(1).any(1)).squeeze(1)
     n, (height, width) = len(views), depths.shape[1:]
-    agreement, decided = np.full(n, np.nan), np.zeros(n, np.int64)
+    votes = np.zeros((n, n, 2), np.int64)  # [view, neighbour] -> (agreeing, contradicting) lookups
     if n >= 2:
-        nearest = _neighbours(poses, views, neighbours)
-        for row, view in enumerate(views.tolist()):
-            agree, contra = _view_votes(view, views[nearest[row]], depths, poses, K, sigma_m, points_per_view,
-                                        height, width)
-            decided[row] = agree + contra
-            if decided[row] >= _MIN_DECIDED:
-                agreement[row] = agree / decided[row]
-    used = ~(agreement < min_agreement)  # NaN (nothing decided) keeps the view
-    return DepthViewCheck(views.numpy(), agreement, decided, used, float(min_agreement))
+        for row, (view, nearest) in enumerate(zip(views.tolist(), _neighbours(poses, views, neighbours))):
+            if len(nearest):
+                votes[row, nearest.numpy()] = _view_votes(view, views[nearest], depths, poses, K, sigma_m,
+                                                          points_per_view, height, width)
+    # Peel off the worst view while one disagrees: a broken view also makes its good neighbours look bad (their
+    # points land in front of its wrong surfaces), until it no longer counts as a neighbour.
+    rejected = np.zeros(n, bool)
+    while True:
+        agreement, decided = _scores(votes, rejected)
+        bad = np.flatnonzero(~rejected & (agreement < min_agreement))
+        if not len(bad):
+            break
+        rejected[bad[np.argmin(agreement[bad])]] = True
+    if rejected.sum() > n / 2:  # most views disagree: the sensor itself is broken, none of its depth is used
+        rejected[:] = True
+    return DepthViewCheck(views.numpy(), agreement, decided, ~rejected, float(min_agreement))
+
+
+def _scores(votes: np.ndarray, rejected: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(agreement [n] (NaN: fewer than ``_MIN_DECIDED`` decided lookups), decided lookups [n]) of each view against
+    the neighbours not ``rejected``."""
+    counted = votes[:, ~rejected].sum(axis=1)
+    decided = counted.sum(axis=1)
+    with np.errstate(invalid='ignore', divide='ignore'):
+        agreement = np.where(decided >= _MIN_DECIDED, counted[:, 0] / decided, np.nan)
+    return agreement, decided
 
 
 def _view_votes(view: int, others: torch.Tensor, depths: torch.Tensor, poses: torch.Tensor, K: torch.Tensor,
                 sigma_m: Callable[[torch.Tensor], torch.Tensor], count: int, height: int, width: int
-                ) -> tuple[int, int]:
-    """(agreeing, contradicting) lookups of ``view``'s depth points in the ``others`` views' depth images."""
+                ) -> np.ndarray:
+    """[M, 2] (agreeing, contradicting) lookups of ``view``'s depth points in each of the ``others`` views' depth
+    images."""
     flat = torch.nonzero(depths[view].reshape(-1) > 0).squeeze(1)
     flat = flat[torch.linspace(0, len(flat) - 1, min(count, len(flat))).long()]
     row, col = (flat // width).float(), (flat % width).float()
@@ -133,4 +158,4 @@ def _view_votes(view: int, others: torch.Tensor, depths: torch.Tensor, poses: to
     tolerance = 3.0 * torch.sqrt(sigma_m(z_other) ** 2 + sigma_m(seen) ** 2) + _FOOTPRINT_PX * z_other / k[..., 0]
     agree = has & ((z_other - seen).abs() <= tolerance)
     contradict = has & (z_other < seen - tolerance)
-    return int(agree.sum()), int(contradict.sum())
+    return torch.stack([agree.sum(1), contradict.sum(1)], dim=1).numpy()

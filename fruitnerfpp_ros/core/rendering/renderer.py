@@ -8,6 +8,7 @@ from typing import Callable, NamedTuple
 import torch
 
 from fruitnerfpp_ros.core.data.rays import RayBundle
+from fruitnerfpp_ros.core.rendering.depth_loss import DepthTarget, LineOfSight, line_of_sight
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
 from fruitnerfpp_ros.core.rendering.marching import RaySamples, march_rays
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
@@ -51,6 +52,8 @@ class RenderOutput(NamedTuple):
             differentiable), or None.
         depth: [N] median termination distance (m): where the accumulated weight reaches half the ray's opacity
             (``inf`` for a ray with no weight), or None when not asked for.
+        line_of_sight: the colour weights split at each ray's measured depth (``depth_target``; differentiable),
+            or None.
     """
 
     rgb: torch.Tensor | None
@@ -60,6 +63,7 @@ class RenderOutput(NamedTuple):
     num_samples: int
     distortion: torch.Tensor | None = None
     depth: torch.Tensor | None = None
+    line_of_sight: LineOfSight | None = None
 
 
 def autocast_for(device: torch.device, enabled: bool) -> contextlib.AbstractContextManager:
@@ -83,7 +87,8 @@ def _early_terminated(samples: RaySamples, geometry: GeometryFn, stop_transmitta
 def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, settings: RenderSettings, *,
                 jitter: torch.Tensor | None = None, colour: bool = True, semantic: bool = False,
                 instance: bool = False, geometry_fn: GeometryFn | None = None,
-                distortion_rays: int | None = None, depth: bool = False) -> RenderOutput:
+                distortion_rays: int | None = None, depth: bool = False,
+                depth_target: DepthTarget | None = None) -> RenderOutput:
     """Volume-render ``rays`` through the field.
 
     Gradients: colour/opacity reach density and colour; the fruit probability and the embedding are composited
@@ -102,6 +107,8 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
         distortion_rays: the distortion loss covers rays ``0..distortion_rays-1`` only (the uniformly drawn part of a
             training batch); None = every ray.
         depth: also return each ray's median termination distance.
+        depth_target: measured depths of the rays: return their line-of-sight split of the weights (``colour``
+            rendering only, as it trains density).
     """
     geometry = geometry_fn or field.geometry
     device = rays.origins.device
@@ -113,10 +120,12 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
         with torch.set_grad_enabled(needs_graph):
             geo = geometry(samples.positions)
             weights = render_weights(samples, geo.density)
-        rgb = fruit_prob = embedding = dist = None
+        rgb = fruit_prob = embedding = dist = los = None
         if colour:
             if torch.is_grad_enabled():
                 dist = distortion(samples, weights, num_rays=distortion_rays)
+            if depth_target is not None:
+                los = line_of_sight(samples, rays, weights, depth_target, grid.aabb, settings.near)
             values = field.rgb(geo.features, samples.directions)
             opacity = accumulation(samples, weights)
             behind = field.background_rgb(rays.directions)
@@ -133,7 +142,7 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             out = emb.new_zeros(samples.num_rays, emb.shape[1])
             embedding = out.index_add(0, samples.ray_index[keep], w[keep, None] * emb)
         median = _median_depth(samples, rays, weights.detach(), opacity.detach()) if depth else None
-    return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist, median)
+    return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist, median, los)
 
 
 def _median_depth(samples: RaySamples, rays: RayBundle, weights: torch.Tensor, opacity: torch.Tensor) -> torch.Tensor:

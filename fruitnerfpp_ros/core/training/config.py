@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from dataclasses import field as _field
+from typing import Any
 
 from fruitnerfpp_ros.core.data.scene_scale import ScaleConfig
 from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, HashGridConfig
@@ -20,8 +21,8 @@ from fruitnerfpp_ros.core.preset_names import PRESET_NAMES  # noqa: F401 - re-ex
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['TrainConfig', 'DataConfig', 'RenderConfig', 'StageSchedule', 'GeometryStageConfig',
-           'SemanticStageConfig', 'InstanceStageConfig', 'OptimizerConfig', 'FieldConfig', 'HashGridConfig',
-           'ScaleConfig', 'PRESET_NAMES']
+           'SemanticStageConfig', 'InstanceStageConfig', 'OptimizerConfig', 'DepthConfig', 'FieldConfig',
+           'HashGridConfig', 'ScaleConfig', 'PRESET_NAMES']
 
 
 @dataclass(frozen=True)
@@ -182,6 +183,59 @@ class OptimizerConfig:
 
 
 @dataclass(frozen=True)
+class DepthConfig:
+    """Depth supervision from an RGB-D camera (``core/rendering/depth_loss.py``).
+
+    Used only when the dataset has depth images (``depth_file_path``) and ``weight > 0``: a dataset without depth
+    trains exactly as without this section. The line-of-sight loss acts on the uniformly drawn rays of stages 1 and
+    2 that have a depth (like the photometric loss, it reaches density and the pose corrections; semantic and
+    instance heads are untouched).
+    """
+
+    weight: float = 0.05
+    """lambda_depth, weight of the line-of-sight loss (dimensionless, per ray); 0 = depth is ignored."""
+    free_space_weight: float = 0.3
+    """Weight of its free-space term (render weight in front of the measured surface) against its surface term
+    (1 - render weight within the surface window). 1.0 removed a little more fog but thinned the fruit (75-85 %
+    opacity, held-out semantic IoU 0.40-0.54 on the test scene); 0.3 keeps them opaque (docs/results/rgbd.md)."""
+    sigma_min_m: float = 0.004
+    """Depth standard deviation at zero range (m): quantisation, calibration."""
+    sigma_per_m2: float = 0.0025
+    """Range-squared growth of a stereo camera's depth error (1/m): sigma(z) = sigma_min_m + sigma_per_m2 z^2,
+    i.e. k / (f b) for a disparity noise of k px, a focal length of f px and a baseline of b m (0.08 px, 640 px,
+    5 cm: 0.0025; 1 cm at 2 m)."""
+    window_sigmas: float = 2.0
+    """The surface window of a ray: the measured depth +- this many standard deviations (never narrower than one
+    marching step). A ray's loss is scaled by (narrowest window / its window): uncertain depths count less."""
+    min_depth_m: float = 0.1
+    """Depths closer than this are no return (m)."""
+    max_depth_m: float = 20.0
+    """Depths farther than this are no return (m): beyond any RGB-D camera's range, e.g. a wrong unit."""
+    check_views: bool = True
+    """Before training, check each view's depth against its neighbours' (``core/data/depth_check.py``) and train
+    without the depth of views that disagree (a broken, misaligned or mis-scaled sensor)."""
+    min_agreement: float = 0.5
+    """A view's depth is used when at least this fraction of its checked points agree with the neighbouring
+    views' depth (of the points a neighbour sees and does not see through)."""
+    check_neighbours: int = 4
+    """Neighbouring views (nearest camera centres, facing the same way) each view is checked against."""
+
+    def __post_init__(self) -> None:
+        if self.weight < 0 or self.free_space_weight < 0:
+            raise ConfigError('depth.weight and depth.free_space_weight must be >= 0')
+        if self.sigma_min_m <= 0 or self.sigma_per_m2 < 0 or self.window_sigmas <= 0:
+            raise ConfigError('depth.sigma_min_m and depth.window_sigmas must be > 0, depth.sigma_per_m2 >= 0')
+        if not 0 <= self.min_depth_m < self.max_depth_m:
+            raise ConfigError('depth: need 0 <= min_depth_m < max_depth_m')
+        if not 0.0 <= self.min_agreement <= 1.0 or self.check_neighbours < 1:
+            raise ConfigError('depth.min_agreement must lie in [0, 1] and depth.check_neighbours be >= 1')
+
+    def sigma_m(self, depth_m: Any) -> Any:
+        """Standard deviation (m) of measured depths (m; a float, numpy array or tensor), by the stereo model."""
+        return self.sigma_min_m + self.sigma_per_m2 * depth_m * depth_m
+
+
+@dataclass(frozen=True)
 class TrainConfig:
     """Cascaded FruitNeRF++ training: data, field, rendering, three stages, bookkeeping."""
 
@@ -201,6 +255,8 @@ class TrainConfig:
     """The fruit diameter (measured from the masks and poses, or given) every length follows from."""
     optimizer: OptimizerConfig = _field(default_factory=OptimizerConfig)
     """Adam settings."""
+    depth: DepthConfig = _field(default_factory=DepthConfig)
+    """Depth supervision, when the dataset has depth images."""
     seed: int = 0
     """Seed of every random source (weights, samplers, jitter)."""
     checkpoint_every: int = 500

@@ -2,14 +2,20 @@
 on one device, with one method per loss.
 
 Stages (stages.py) decide which rays to render and which losses to add; the model renders and computes them. The
-gradient rules of the method live here and in the field: the photometric and distortion losses reach density,
-colour and the pose corrections; the semantic and contrastive losses reach only their own heads (detached render
-weights, detached geometry features and detached sample positions).
+gradient rules of the method live here and in the field: the photometric, distortion and depth losses reach
+density, colour and the pose corrections; the semantic and contrastive losses reach only their own heads (detached
+render weights, detached geometry features and detached sample positions).
+
+Depth (RGB-D datasets, ``config.depth``): the training views' depth images are range-limited, cross-checked
+between views (``core/data/depth_check.py``: the depth of views that disagree with their neighbours is dropped)
+and kept on the device; :meth:`FruitNeRFModel.depth_target` turns the depth of a batch's pixels into ray distances
+with windows from the sensor's uncertainty. A dataset without depth builds no depth state at all.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import warnings
 from typing import Callable
@@ -19,15 +25,19 @@ import torch
 from torch import nn
 
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
+from fruitnerfpp_ros.core.data.depth_check import DepthViewCheck, check_depth_views
 from fruitnerfpp_ros.core.data.rays import PixelBatch, RayBundle, rays_for_pixels
 from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, FruitField, GeometryOutput
+from fruitnerfpp_ros.core.rendering.depth_loss import DepthTarget, line_of_sight_loss
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
 from fruitnerfpp_ros.core.rendering.renderer import RenderOutput, RenderSettings, render_rays
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.losses import photometric_loss, prototype_infonce, semantic_loss
 from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
 
-__all__ = ['FruitNeRFModel', 'render_settings', 'field_config_for', 'occupancy_grid']
+__all__ = ['FruitNeRFModel', 'render_settings', 'field_config_for', 'occupancy_grid', 'training_depths']
+
+log = logging.getLogger(__name__)
 
 GeometryFn = Callable[[torch.Tensor], GeometryOutput]
 
@@ -59,6 +69,28 @@ def occupancy_grid(config: TrainConfig, aabb: np.ndarray, fruit_diameter_m: floa
     return OccupancyGrid(torch.as_tensor(aabb, dtype=torch.float32),
                          resolution=render.occupancy_cells(extent, fruit_diameter_m),
                          threshold=render.occupancy_threshold, decay=render.occupancy_decay)
+
+
+def training_depths(config: TrainConfig, dataset: SceneDataset) -> tuple[torch.Tensor | None, DepthViewCheck | None]:
+    """The depth the training views contribute ([V, H, W] metres, 0 = none; held-out views and out-of-range
+    depths removed, the depth of views that disagree with their neighbours removed) and the view check (None when
+    not run); (None, None) without depth or with ``depth.weight`` 0."""
+    cfg = config.depth
+    if dataset.depths is None or cfg.weight <= 0:
+        return None, None
+    depths = dataset.depths.clone()
+    depths[(depths < cfg.min_depth_m) | (depths > cfg.max_depth_m)] = 0.0
+    depths[dataset.eval_indices] = 0.0
+    check = None
+    if cfg.check_views:
+        check = check_depth_views(depths, dataset.T_world_camera, dataset.intrinsics, cfg.sigma_m,
+                                  min_agreement=cfg.min_agreement, neighbours=cfg.check_neighbours)
+        depths[torch.as_tensor(check.rejected_views, dtype=torch.int64)] = 0.0
+        (log.warning if check.rejected_views else log.info)('%s', check.summary())
+    if not bool((depths > 0).any()):
+        log.warning('depth: no usable depth in the training views; training without depth')
+        return None, check
+    return depths, check
 
 
 class _GuardedCompile:
@@ -105,6 +137,11 @@ class FruitNeRFModel(nn.Module):
         self.register_buffer('semantics', dataset.semantic_masks.to(device), persistent=False)
         self.register_buffer('poses', dataset.T_world_camera.to(device), persistent=False)
         self.register_buffer('intrinsics', dataset.intrinsics.to(device), persistent=False)
+        # The narrowest surface window: the field cannot put a surface sharper than its finest geometry cell.
+        self.depth_window_min_m = max(self.settings.step, config.field.geometry_grid.finest_cell * fruit_diameter_m)
+        depths, self.depth_check = training_depths(config, dataset)
+        self.depths: torch.Tensor | None
+        self.register_buffer('depths', None if depths is None else depths.to(device), persistent=False)
         self.geometry_fn: GeometryFn = self.field.geometry
         if device.type == 'cuda' and config.render.compile and hasattr(torch, 'compile'):
             self.geometry_fn = _GuardedCompile(self.field.geometry)
@@ -123,11 +160,39 @@ class FruitNeRFModel(nn.Module):
         return rays_for_pixels(self.current_poses(), self.intrinsics, view, row, col)
 
     def render(self, pixels: PixelBatch, jitter: torch.Tensor, *, colour: bool = True, semantic: bool = False,
-               instance: bool = False, distortion_rays: int | None = None) -> RenderOutput:
+               instance: bool = False, distortion_rays: int | None = None,
+               depth_target: DepthTarget | None = None) -> RenderOutput:
         """Render the rays of ``pixels`` with first-sample offsets ``jitter`` [N] in [0, 1)."""
         return render_rays(self.field, self.grid, self.rays(pixels), self.settings, jitter=jitter.to(self.device),
                            colour=colour, semantic=semantic, instance=instance, geometry_fn=self.geometry_fn,
-                           distortion_rays=distortion_rays)
+                           distortion_rays=distortion_rays, depth_target=depth_target)
+
+    def depth_target(self, pixels: PixelBatch, num_rays: int) -> DepthTarget | None:
+        """Measured depths of the first ``num_rays`` rays of ``pixels`` (the uniformly drawn part), or None when
+        the run has no depth.
+
+        The optical-axis depth z becomes the distance along the unit ray; the window is ``window_sigmas`` standard
+        deviations of the stereo model, never narrower than what the field resolves (one marching step, the finest
+        geometry cell), and the ray's weight is that narrowest window / its window (1 for depth as sharp as the
+        field, less for uncertain depth); 0 where depth is missing.
+        """
+        if self.depths is None:
+            return None
+        view, row, col = (t.to(self.device) for t in (pixels.view, pixels.row, pixels.col))
+        z = self.depths[view, row, col]
+        z = torch.where(torch.arange(len(z), device=z.device) < num_rays, z, torch.zeros_like(z))
+        K = self.intrinsics[view]
+        x, y = (col.float() + 0.5 - K[:, 2]) / K[:, 0], (row.float() + 0.5 - K[:, 3]) / K[:, 1]
+        stretch = torch.sqrt(1.0 + x * x + y * y)  # distance along the ray per metre of optical depth
+        cfg, narrowest = self.config.depth, self.depth_window_min_m
+        window = torch.clamp(cfg.window_sigmas * cfg.sigma_m(z) * stretch, min=narrowest)
+        weight = torch.where(z > 0, narrowest / window, torch.zeros_like(z))
+        return DepthTarget(z * stretch, window, weight)
+
+    def depth_loss(self, out: RenderOutput, target: DepthTarget) -> torch.Tensor:
+        """The line-of-sight loss of the rendered rays against their measured depths."""
+        assert out.line_of_sight is not None
+        return line_of_sight_loss(out.line_of_sight, target, self.config.depth.free_space_weight)
 
     def _targets(self, table: torch.Tensor, pixels: PixelBatch, count: int | None = None) -> torch.Tensor:
         view, row, col = (t[:count].to(self.device) for t in (pixels.view, pixels.row, pixels.col))

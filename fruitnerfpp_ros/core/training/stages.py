@@ -1,6 +1,7 @@
 """The three stages of cascaded training, one object each: its sampler, parameter groups, losses and schedule.
 
-1. :class:`GeometryStage`: density + colour (+ pose corrections) on uniform rays.
+1. :class:`GeometryStage`: density + colour (+ pose corrections) on uniform rays (+ the line-of-sight depth loss
+   on those with a measured depth, RGB-D datasets only).
 2. :class:`SemanticStage`: + the semantic head; a share of fruit pixels is added to every batch for the BCE loss,
    the photometric and distortion losses stay on the uniform rays; density, colour and poses continue at the
    constant learning rate stage 1 ended with.
@@ -55,7 +56,8 @@ class StepLosses(NamedTuple):
 
     Attributes:
         total: the scalar to minimise.
-        logged: detached scalars by name (``photo``, ``distortion``, ``semantic_loss``, ``contrastive_loss``).
+        logged: detached scalars by name (``photo``, ``distortion``, ``depth_loss``, ``depth_rays`` (share of the
+            batch with a depth), ``semantic_loss``, ``contrastive_loss``).
         samples_per_ray: samples the field evaluated per ray.
     """
 
@@ -118,13 +120,20 @@ class GeometryStage:
         pixels = self.sampler.sample(self.batch_rays, generator)
         jitter = torch.rand(len(pixels.view), generator=generator)
         n_uniform = self.sampler.num_uniform(len(pixels.view))
-        out = model.render(pixels, jitter, colour=True, semantic=semantic, distortion_rays=n_uniform)
+        target = model.depth_target(pixels, n_uniform)
+        out = model.render(pixels, jitter, colour=True, semantic=semantic, distortion_rays=n_uniform,
+                           depth_target=target)
         photo = model.photometric_loss(out, pixels, n_uniform)
         total, logged = photo, {'photo': photo.detach()}
         weight = self.config.geometry.distortion_weight
         if weight > 0 and out.distortion is not None:
             total = total + weight * out.distortion
             logged['distortion'] = out.distortion.detach()
+        if target is not None:
+            depth = model.depth_loss(out, target)
+            total = total + self.config.depth.weight * depth
+            logged['depth_loss'] = depth.detach()
+            logged['depth_rays'] = (target.weight > 0).float().mean()
         if semantic:
             bce = model.semantic_loss(out, pixels)
             total = total + self.config.semantic.semantic_weight * bce

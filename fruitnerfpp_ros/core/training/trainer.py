@@ -244,6 +244,8 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
         log.warning('could not measure the fruit size from the masks (%d fruit voxels); using %.3f m: set '
                     'scale.fruit_diameter_m if that is far off', scale.n_fruit_voxels, scale.fruit_diameter_m)
     model = FruitNeRFModel(config, dataset, aabb, scale.fruit_diameter_m, dev)
+    if model.depth_check is not None:  # RGB-D: which views' depth agreed with their neighbours'
+        atomic_write_text(run.root / 'depth_check.json', json.dumps(model.depth_check.to_json(), indent=1))
     generator = torch.Generator().manual_seed(config.seed)
     checkpointer = _Checkpointer(run, config, dataset.dataset_dir, aabb, scale, model, generator)
     counters, optimizer_state = _Progress(summaries=[]), None
