@@ -47,6 +47,7 @@ ROLE_TYPES = {
     'odometry': ('nav_msgs/msg/Odometry',),
     'tf': ('tf2_msgs/msg/TFMessage',),
     'tf_static': ('tf2_msgs/msg/TFMessage',),
+    'depth': ('sensor_msgs/msg/Image',),
 }
 RESULTS_NAME = 'results.mcap'
 REPORT_NAME = 'fruit_report.json'
@@ -97,12 +98,15 @@ def _roles_in_bag(source: BagSource, assembler: FrameAssembler, settings: Counte
     used = list(assembler.required_roles())
     if settings.pose_source in ('tf', 'odometry'):
         used += [r for r in ('tf', 'tf_static') if r not in used]
+    used += assembler.optional_roles()
     for role in used:
         topic = assembler.topic_of(role)
         if topic not in by_topic:
             if role in assembler.required_roles():
                 raise BagError(f'{bag_path}: no topic {topic} ({role}) in the bag; topics in the bag: '
                                f'{_topics_table(source.topics)}. Set the *_topic parameters (--params) to match.')
+            if role in assembler.optional_roles():
+                log(LogLevel.WARN, f'{bag_path}: no topic {topic} ({role}) in the bag; keyframes without {role}')
             continue
         msgtype = by_topic[topic].msgtype
         if msgtype not in ROLE_TYPES[role]:

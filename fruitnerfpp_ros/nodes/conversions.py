@@ -29,8 +29,9 @@ from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
 __all__ = [
     'REPORT_SCHEMA', 'REPORT_VERSION', 'CLOUD_DTYPE', 'QUATERNION_NORM_TOLERANCE', 'CameraModel',
     'stamp_ns_from_header', 'time_msg_from_ns',
-    'image_from_msg', 'mask_from_msg', 'camera_model_from_camera_info', 'intrinsics_from_camera_info',
-    'undistort_image', 'undistort_mask', 'undistorter_for', 'valid_pixels', 'transform_from_pose_msg',
+    'image_from_msg', 'mask_from_msg', 'depth_from_msg', 'camera_model_from_camera_info',
+    'intrinsics_from_camera_info', 'undistort_image', 'undistort_mask', 'undistort_depth', 'undistorter_for',
+    'valid_pixels', 'transform_from_pose_msg',
     'transform_from_transform_msg', 'add_tf_message',
     'pose_msg_from_transform', 'cloud_msg_from_points', 'points_from_cloud_msg', 'pose_array_from_centers',
     'markers_from_fruits', 'report_from_count', 'report_json', 'image_msg_from_array',
@@ -50,6 +51,8 @@ _MASK_ENCODINGS = {
     'mono16': np.uint16, '16UC1': np.uint16, '32SC1': np.int32, '32UC1': np.uint32, 'mono8': np.uint8,
     '8UC1': np.uint8,
 }
+#: Depth encodings -> (dtype, metres per unit): REP 118 (16UC1 millimetres, 32FC1 metres); mono16 as 16UC1.
+_DEPTH_ENCODINGS = {'16UC1': (np.uint16, 1e-3), 'mono16': (np.uint16, 1e-3), '32FC1': (np.float32, 1.0)}
 _DISTORTION_MODELS = ('plumb_bob', 'rational_polynomial', 'equidistant')
 #: Coefficient counts OpenCV undoes per model (ROS: plumb_bob 5, rational_polynomial 8, equidistant 4).
 _DISTORTION_SIZES = {'plumb_bob': (4, 5, 8, 12, 14), 'rational_polynomial': (4, 5, 8, 12, 14),
@@ -171,6 +174,26 @@ def mask_from_msg(msg: Any, *, topic: str = 'mask', expected_shape: tuple[int, i
     return ids.astype(np.uint16)
 
 
+def depth_from_msg(msg: Any, *, topic: str = 'depth', expected_shape: tuple[int, int] | None = None) -> np.ndarray:
+    """[H, W] float32 depth in metres (0 = no return) from a ``sensor_msgs/Image`` 16UC1 (millimetres, 0 = no
+    return) or 32FC1 (metres; NaN, inf and values <= 0 = no return), as REP 118 defines them.
+
+    Raises:
+        ConversionError: another encoding, an inconsistent size, or a size other than ``expected_shape`` (H, W).
+    """
+    encoding = str(msg.encoding)
+    if encoding not in _DEPTH_ENCODINGS:
+        raise ConversionError(f'{topic}: unsupported depth encoding {encoding!r}; expected 16UC1 (millimetres) or '
+                              '32FC1 (metres)')
+    dtype, unit_m = _DEPTH_ENCODINGS[encoding]
+    raw = _pixels(msg, 1, dtype, topic)[..., 0]
+    if expected_shape is not None and raw.shape != tuple(expected_shape):
+        raise ConversionError(f'{topic}: depth image is {raw.shape[1]}x{raw.shape[0]} but the colour image is '
+                              f'{expected_shape[1]}x{expected_shape[0]}; publish depth aligned to the colour camera')
+    metres = raw.astype(np.float32) * np.float32(unit_m)
+    return np.where(np.isfinite(metres) & (metres > 0), metres, np.float32(0.0))
+
+
 def image_msg_from_array(pixels: np.ndarray, encoding: str, frame_id: str, stamp_ns: int) -> Any:
     """``sensor_msgs/Image`` from [H, W, 3] uint8 (``rgb8``) or [H, W] uint16 (``mono16``) pixels."""
     from sensor_msgs.msg import Image
@@ -256,6 +279,13 @@ def undistort_mask(mask: np.ndarray, camera: CameraModel) -> np.ndarray:
     """Undo the lens distortion of an instance mask (nearest neighbour, so ids never blend)."""
     undistorter = undistorter_for(camera)
     return mask if undistorter is None else undistorter.labels(mask)
+
+
+def undistort_depth(depth: np.ndarray, camera: CameraModel) -> np.ndarray:
+    """Undo the lens distortion of a depth image aligned to the colour image (nearest neighbour, so depths never
+    blend across an edge; 0 where the undistorted image holds no data)."""
+    undistorter = undistorter_for(camera)
+    return depth if undistorter is None else undistorter.labels(depth)
 
 
 def valid_pixels(camera: CameraModel) -> np.ndarray | None:

@@ -1,10 +1,13 @@
 """Turns image / mask / pose / camera_info / TF messages into keyframes: the one path of live node and bag replay.
 
 The live node's worker and the bag reader both call :meth:`FrameAssembler.on_message` with a role
-(``image``, ``mask``, ``pose``, ``odometry``, ``camera_info``, ``tf``, ``tf_static``) and a message (rclpy or
-rosbags-decoded). Image, mask and pose are matched by stamp (:class:`ApproximateTimeSynchronizer`); a matched
+(``image``, ``mask``, ``pose``, ``odometry``, ``camera_info``, ``tf``, ``tf_static``, ``depth``) and a message (rclpy
+or rosbags-decoded). Image, mask and pose are matched by stamp (:class:`ApproximateTimeSynchronizer`); a matched
 frame waits (up to ``pending_timeout_s`` of stamp time) for camera_info and TF, is converted and undistorted,
-and offered to the :class:`KeyframeStore`, which writes it to disk when kept.
+and offered to the :class:`KeyframeStore`, which writes it to disk when kept. With a ``depth_topic``, the depth
+image of the same stamp (within ``sync_slop_s``, as the mask) joins the frame (:class:`DepthMatcher`): checked
+against the image's size and frame, undistorted like the masks; a frame whose depth does not come (a silent topic,
+a lost image) or is refused is kept without depth.
 
 Bad input never raises out of :meth:`on_message`: it is logged (throttled per kind) and counted in
 :attr:`FrameAssembler.errors`; frames already collected stay on disk. A keyframe the store cannot write (a full
@@ -27,8 +30,10 @@ from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer, TfFutureError, TfLo
 from fruitnerfpp_ros.core.streams.time_sync import ApproximateTimeSynchronizer, SyncedSet
 from fruitnerfpp_ros.errors import ConversionError, DatasetError, FruitNerfError
 from fruitnerfpp_ros.nodes.conversions import (CameraModel, add_tf_message, camera_model_from_camera_info,
-                                               image_from_msg, stamp_ns_from_header, transform_from_pose_msg,
-                                               undistort_image, undistort_mask, valid_pixels)
+                                               depth_from_msg, image_from_msg, stamp_ns_from_header,
+                                               transform_from_pose_msg, undistort_depth, undistort_image,
+                                               undistort_mask, valid_pixels)
+from fruitnerfpp_ros.nodes.depth_matcher import DepthMatcher, DepthWait
 from fruitnerfpp_ros.nodes.log import LogFunction, LogLevel, ThrottledLog
 from fruitnerfpp_ros.nodes.mask_source import MaskSource, mask_source_from_settings
 from fruitnerfpp_ros.nodes.params import CounterSettings
@@ -66,6 +71,8 @@ class FrameAssembler:
             names, int(settings.sync_slop_s * 1e9), settings.queue_size)
         extrinsic = settings.extrinsic_values()
         self._T_base_camera = None if extrinsic is None else transform_from_quaternion(extrinsic[:3], extrinsic[3:])
+        self.depth = DepthMatcher(int(settings.sync_slop_s * 1e9), int(settings.pending_timeout_s * 1e9),
+                                  settings.queue_size) if settings.depth_topic else None
         self.camera: CameraModel | None = None
         self._pending: list[SyncedSet] = []
         self._newest_stamp_ns = 0
@@ -81,7 +88,8 @@ class FrameAssembler:
         """The topic a role is read from (for messages)."""
         s = self.settings
         return {'image': s.image_topic, 'mask': s.mask_topic, 'pose': s.pose_topic, 'odometry': s.odometry_topic,
-                'camera_info': s.camera_info_topic, 'tf': '/tf', 'tf_static': '/tf_static'}[role]
+                'camera_info': s.camera_info_topic, 'tf': '/tf', 'tf_static': '/tf_static',
+                'depth': s.depth_topic}[role]
 
     def required_roles(self) -> list[str]:
         """Roles without which no keyframe can be made (for checking a bag's topics)."""
@@ -91,6 +99,10 @@ class FrameAssembler:
         if self.settings.pose_source == 'tf':
             roles.append('tf')
         return roles
+
+    def optional_roles(self) -> list[str]:
+        """Roles used when present: without them keyframes are still made (``depth`` with a ``depth_topic``)."""
+        return ['depth'] if self.depth is not None else []
 
     def on_message(self, role: str, msg: Any) -> list[KeyframeDecision]:
         """Feed one message; returns what the store decided for every frame this message completed."""
@@ -117,7 +129,7 @@ class FrameAssembler:
                           f'{camera.intrinsics.h} camera, distortion {camera.distortion_model or "none"}')
             self.camera = camera
             return self._drain()
-        if role not in self._sync_index:
+        if role not in self._sync_index and not (role == 'depth' and self.depth is not None):
             return []
         stamp_ns = stamp_ns_from_header(msg.header)
         if role in ('pose', 'odometry'):
@@ -125,6 +137,11 @@ class FrameAssembler:
         if self._newest_stamp_ns - stamp_ns > self.settings.pending_timeout_s * 1e9:
             self._time_jump(role, stamp_ns)
         self._newest_stamp_ns = max(self._newest_stamp_ns, stamp_ns)
+        if self.depth is not None:
+            self.depth.saw_stamp(stamp_ns)
+            if role == 'depth':
+                self.depth.add(stamp_ns, msg)
+                return self._drain()
         before = sum(self.sync.unmatched.values())
         self._pending.extend(self.sync.add(self._sync_index[role], stamp_ns, msg))
         if sum(self.sync.unmatched.values()) > before:
@@ -141,6 +158,8 @@ class FrameAssembler:
         self._throttled(LogLevel.WARN, 'time_jump', f'{self.topic_of(role)}: stamp jumped back {back_s:.1f} s (a bag '
                         'played again or a clock reset): sync queues and waiting frames cleared')
         self.sync.reset()
+        if self.depth is not None:
+            self.depth.reset()
         self.dropped_pending += len(self._pending)
         self._pending = []
         self._newest_stamp_ns = stamp_ns
@@ -150,8 +169,8 @@ class FrameAssembler:
         decisions, waiting = [], []
         for synced in self._pending:
             try:
-                decisions.append(self._complete(synced))
-            except (TfFutureError, _NoCameraInfo) as err:
+                decisions.append(self._complete(synced, final=final))
+            except (TfFutureError, _NoCameraInfo, DepthWait) as err:
                 too_old = self._newest_stamp_ns - synced.stamp_ns > self.settings.pending_timeout_s * 1e9
                 if final or too_old:
                     self.dropped_pending += 1
@@ -185,7 +204,7 @@ class FrameAssembler:
         self.sync.reset()
         self._pending = []
 
-    def _complete(self, synced: SyncedSet) -> KeyframeDecision:
+    def _complete(self, synced: SyncedSet, *, final: bool = False) -> KeyframeDecision:
         items = dict(zip(self._sync_index, synced.items))
         image_msg = items['image']
         if self.camera is None:
@@ -196,6 +215,7 @@ class FrameAssembler:
         if rgb.shape[:2] != (camera.intrinsics.h, camera.intrinsics.w):
             raise ConversionError(f'{self.settings.image_topic}: image is {rgb.shape[1]}x{rgb.shape[0]} but '
                                   f'{self.settings.camera_info_topic} says {camera.intrinsics.w}x{camera.intrinsics.h}')
+        depth = self._depth_for(synced.stamp_ns, image_msg, camera, final=final)  # may wait: before the work
         undistorted = undistort_image(rgb, camera)
         instances: np.ndarray | Callable[[], np.ndarray]
         if self.mask_source.topic is None:  # a segmenter: run on the undistorted image, only if the store keeps it
@@ -204,7 +224,7 @@ class FrameAssembler:
         else:
             instances = undistort_mask(self.mask_source.instances_for(rgb, items.get('mask')), camera)
         keyframe = Keyframe(synced.stamp_ns, undistorted, instances, T_world_optical, camera.intrinsics,
-                            valid_pixels(camera))
+                            valid_pixels(camera), depth)
         decision = self.store.offer(keyframe)
         if self.store.write_errors > self._write_errors_logged and self.store.last_write_error:
             self._write_errors_logged = self.store.write_errors  # a deferred transforms.json rewrite failed
@@ -220,6 +240,37 @@ class FrameAssembler:
             self._throttled(LogLevel.WARN, 'full', f'max_keyframes={self.store.config.max_keyframes} reached; '
                             'further frames are ignored (call ~/train or ~/reset)')
         return decision
+
+    def _depth_for(self, stamp_ns: int, image_msg: Any, camera: CameraModel, *, final: bool) -> np.ndarray | None:
+        """The frame's undistorted depth (metres, 0 = no return), or None: no depth topic, no depth image for this
+        stamp (the topic is silent, the image was lost), or a depth image refused (another size or frame: logged,
+        ``errors['depth']``).
+
+        Raises:
+            DepthWait: the depth image may still arrive (the frame waits).
+        """
+        if self.depth is None:
+            return None
+        msg = self.depth.take(stamp_ns, self._newest_stamp_ns, final=final)
+        s = self.settings
+        if msg is None:
+            silent_s = self.depth.silent_ns(self._newest_stamp_ns) / 1e9
+            if silent_s > s.pending_timeout_s:
+                self._throttled(LogLevel.WARN, 'depth:silent', f'{s.depth_topic}: no depth image for {silent_s:.1f} s; '
+                                'keyframes are kept without depth')
+            return None
+        try:
+            frames = (str(msg.header.frame_id), str(image_msg.header.frame_id))
+            if all(frames) and frames[0] != frames[1]:
+                raise ConversionError(f'{s.depth_topic}: depth is in frame {frames[0]!r}, the image in {frames[1]!r}; '
+                                      'publish depth aligned to the colour camera (e.g. realsense2_camera '
+                                      'align_depth.enable:=true)')
+            shape = (camera.intrinsics.h, camera.intrinsics.w)
+            return undistort_depth(depth_from_msg(msg, topic=s.depth_topic, expected_shape=shape), camera)
+        except ConversionError as err:
+            self.errors['depth'] += 1
+            self._throttled(LogLevel.WARN, _kind(f'depth:{err}'), f'{err}; frame at {stamp_ns} ns kept without depth')
+            return None
 
     def _camera_frame(self, image_msg: Any) -> str:
         return self.settings.camera_frame or str(image_msg.header.frame_id)

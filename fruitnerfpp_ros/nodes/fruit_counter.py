@@ -10,7 +10,8 @@ Restarted on the same ``output_dir`` (after ``kill -9`` or a power loss) the nod
 publishes the last finished count again and resumes a training run that was interrupted from its last checkpoint.
 
 Interface (see docs/ros_interface.md): inputs ``image_topic`` / ``camera_info_topic`` / ``mask_topic`` (or a
-segmenter, ``mask_source``) / pose (``pose_topic``, ``odometry_topic`` or /tf + /tf_static); services ``~/train``,
+segmenter, ``mask_source``) / pose (``pose_topic``, ``odometry_topic`` or /tf + /tf_static) / optional
+``depth_topic``; services ``~/train``,
 ``~/reset``, ``~/save`` (std_srvs/Trigger); latched outputs ``~/fruit_count``, ``~/fruit_report``, ``~/fruit_cloud``,
 ``~/fruit_centers``, ``~/fruit_markers``; ``/diagnostics``.
 """
@@ -100,6 +101,8 @@ class FruitCounterNode(Node):
         self._subscribe('camera_info', CameraInfo, s.camera_info_topic, sensor_qos, inputs)
         if self.assembler.mask_source.topic is not None:
             self._subscribe('mask', Image, self.assembler.mask_source.topic, sensor_qos, inputs)
+        if s.depth_topic:
+            self._subscribe('depth', Image, s.depth_topic, sensor_qos, inputs)
         if s.pose_source == 'pose':
             from geometry_msgs.msg import PoseStamped
             self._subscribe('pose', PoseStamped, s.pose_topic, sensor_qos, inputs)
@@ -288,7 +291,8 @@ class FruitCounterNode(Node):
             received = {self.assembler.topic_of(role): n for role, n in self._received.items()}
         run = self.run_status
         # Inputs are expected while collecting; once a drive is done and training runs, silence is normal.
-        silent = [role for role in self.assembler.required_roles() if role in self._queues
+        watched = self.assembler.required_roles() + self.assembler.optional_roles()  # a silent depth topic too
+        silent = [role for role in watched if role in self._queues
                   and now - last_rx.get(role, self._started) > s.silent_input_warning_s] \
             if run.state is NodeState.COLLECTING and not self.training else []
         for role in silent:

@@ -38,6 +38,11 @@ class CounterSettings:
                                 'rational_polynomial and equidistant distortion is undone.')
     mask_topic: str = _p('/camera/instance_mask', 'Instance masks, sensor_msgs/Image mono16/16UC1/32SC1 '
                          '(0 = background, k = fruit k), same size and stamp as the image.')
+    depth_topic: str = _p('', 'Optional depth images aligned to the colour image (an RGB-D camera, e.g. '
+                          "realsense2_camera's /camera/aligned_depth_to_color/image_raw): sensor_msgs/Image 16UC1 "
+                          'millimetres or 32FC1 metres, 0 / NaN = no return, same size, frame and stamp as the image; '
+                          "training then adds a depth loss. '' = no depth. A frame never waits for a silent depth "
+                          'topic: it is kept without depth (and /diagnostics warns).')
     mask_source: Literal['topic', 'fallback', 'torchscript', 'sam'] = _p(
         'topic', "Where instance masks come from: 'topic' = mask_topic; 'fallback' = the built-in fruit-agnostic "
         "colour segmenter run on each image; 'torchscript' / 'sam' = a TorchScript instance-segmentation model / "
