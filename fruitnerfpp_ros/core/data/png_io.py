@@ -1,7 +1,8 @@
 """PNG writers for datasets: RGB images, 16-bit instance-id masks, 8-bit fruit masks (one copy for every writer).
 
-Written with OpenCV at a fixed compression level (the same array gives byte-identical files) and atomically
-(temporary file + rename), so an interrupted writer never leaves half a PNG.
+Encoded in memory with OpenCV at a fixed compression level (the same array gives byte-identical files) and written
+atomically (temporary file + rename) with Python's own file I/O, so an interrupted writer never leaves half a PNG
+and a full disk is an error (``cv2.imwrite`` reports a file the disk cut short as written).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from fruitnerfpp_ros.core.atomic_io import atomic_path
+from fruitnerfpp_ros.core.atomic_io import atomic_write_bytes
 from fruitnerfpp_ros.errors import DatasetError
 
 __all__ = ['write_rgb_png', 'write_uint16_png', 'write_mask_png']
@@ -21,10 +22,11 @@ _PNG_PARAMS = [cv2.IMWRITE_PNG_COMPRESSION, 3]
 
 def _imwrite(path: str | Path, image: np.ndarray) -> None:
     path = Path(path)
+    ok, encoded = cv2.imencode('.png', image, _PNG_PARAMS)
+    if not ok:
+        raise DatasetError(f'cannot encode image {path} ({image.shape}, {image.dtype})')
     try:
-        with atomic_path(path, suffix='.tmp.png') as tmp:  # OpenCV picks the encoder from the extension
-            if not cv2.imwrite(str(tmp), image, _PNG_PARAMS):
-                raise DatasetError(f'cannot write image {path}')
+        atomic_write_bytes(path, encoded.tobytes())
     except OSError as err:
         raise DatasetError(f'cannot write image {path}: {err}') from err
 

@@ -47,7 +47,11 @@ class ExportConfig:
     """Surface: at most this many fruit pixels are rendered (a seeded subsample beyond)."""
 
     chunk_rays: int = 8192
-    """Surface: rays rendered per batch (bounds memory)."""
+    """Surface: rays rendered per batch at most."""
+
+    max_chunk_samples: int = 2_000_000
+    """Surface: ... and fewer when rays are long: a batch's rays hold at most this many samples before empty-space
+    skipping (bounds memory: a 7 m box at 1.4 cm steps is 500 samples per ray)."""
 
     voxel_size_m: float | None = None
     """Grid: spacing in metres. None: ``grid_points`` when set, else ``voxel_fruit_fraction`` fruit diameters."""
@@ -116,5 +120,5 @@ class ExportConfig:
             raise ConfigError('ExportConfig: min_opacity and surface_fruit_threshold must be in [0, 1]')
         if not 0 <= self.min_mask_agreement <= 1 or self.mask_dilation_px < 0:
             raise ConfigError('ExportConfig: min_mask_agreement must be in [0, 1] and mask_dilation_px >= 0')
-        if self.min_views < 1 or self.max_rays < 1 or self.chunk_rays < 1:
+        if self.min_views < 1 or self.max_rays < 1 or self.chunk_rays < 1 or self.max_chunk_samples < 1:
             raise ConfigError('ExportConfig: min_views, max_rays and chunk_rays must be >= 1')

@@ -155,6 +155,21 @@ def merge_on_voxels(xyz: torch.Tensor, view: torch.Tensor, values: dict[str, tor
     return mean_xyz, means, n_views
 
 
+def _fruit_pixels(masks: torch.Tensor, views: list[int], max_rays: int) -> tuple[torch.Tensor, int]:
+    """(view, row, col) [M, 3] of the fruit pixels of ``views``, a seeded uniform subsample of ``max_rays`` of them
+    when there are more (drawn view by view: never all pixels of all views at once), and the total count."""
+    total = int(sum(int(masks[v].sum()) for v in views))
+    keep_share = min(1.0, max_rays / max(total, 1))
+    generator = torch.Generator().manual_seed(0)
+    out = []
+    for view in views:
+        rows_cols = torch.nonzero(masks[view])
+        if keep_share < 1.0:
+            rows_cols = rows_cols[torch.rand(len(rows_cols), generator=generator) < keep_share]
+        out.append(torch.cat([torch.full((len(rows_cols), 1), view, dtype=torch.int64), rows_cols], 1))
+    return (torch.cat(out) if out else torch.zeros((0, 3), dtype=torch.int64)), total
+
+
 @torch.no_grad()
 def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: RenderSettings, dataset: SceneDataset,
                          T_world_camera: torch.Tensor, fruit_diameter_m: float, config: ExportConfig | None = None, *,
@@ -177,16 +192,14 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
     started = time.perf_counter()
     device = grid.aabb.device
     views = [int(v) for v in (dataset.train_indices if views is None else views)]
-    hits = torch.nonzero(dataset.semantic_masks[views])                      # [M, 3]: (position in views, row, col)
-    n_pixels = len(hits)
-    if n_pixels > config.max_rays:
-        keep = torch.randperm(n_pixels, generator=torch.Generator().manual_seed(0))[:config.max_rays]
-        hits = hits[torch.sort(keep).values]
-    view_of = torch.as_tensor(views, dtype=torch.int64)[hits[:, 0]]
+    hits, n_pixels = _fruit_pixels(dataset.semantic_masks, views, config.max_rays)   # [M, 3]: (view, row, col)
+    view_of = hits[:, 0]
     poses, intrinsics = T_world_camera.to(device), dataset.intrinsics.to(device)
     parts: dict[str, list[torch.Tensor]] = {k: [] for k in ('xyz', 'view', 'emb', 'rgb', 'prob')}
     n_opaque = n_fruit = 0
-    chunk = config.chunk_rays
+    # a ray holds up to box diagonal / step samples before empty-space skipping: bound the samples of a chunk
+    per_ray = float(torch.linalg.norm(grid.aabb[1] - grid.aabb[0])) / settings.step
+    chunk = max(64, min(config.chunk_rays, int(config.max_chunk_samples / max(per_ray, 1.0))))
     n_chunks = max(1, math.ceil(len(hits) / chunk))
     stopped = False
     for c in range(n_chunks):

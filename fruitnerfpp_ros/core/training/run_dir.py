@@ -54,9 +54,17 @@ class RunDir:
             f.write(json.dumps(clean) + '\n')
 
     def read_metrics(self) -> list[dict[str, Any]]:
+        """The logged records; a last line a kill cut short (no newline, not JSON) is left out."""
         if not self.metrics_path.is_file():
             return []
-        return [json.loads(line) for line in self.metrics_path.read_text().splitlines() if line.strip()]
+        text = self.metrics_path.read_text()
+        lines = text.splitlines()
+        if lines and not text.endswith('\n'):
+            try:
+                json.loads(lines[-1])
+            except ValueError:
+                lines = lines[:-1]
+        return [json.loads(line) for line in lines if line.strip()]
 
     def truncate_metrics(self, keep_until_global_step: int) -> None:
         """Drop lines logged after ``keep_until_global_step`` (on resume, so no step is logged twice)."""

@@ -251,6 +251,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     counters, optimizer_state = _Progress(summaries=[]), None
     if state is not None:
         counters, optimizer_state = checkpointer.restore(state)
+    if state is not None or resume:  # a resumed run keeps only what its checkpoint holds (none yet: nothing)
         run.truncate_metrics(counters.global_step)
     stopped = False
     while counters.stage < len(stages) and not stopped:
