@@ -61,12 +61,12 @@ class ClusterConfig:
     into small fragments that pass the size limits (tiny scene at 1.2 cm voxels: F1 0.64 -> 0.83). None: the sizes
     are used as given (also when the cloud's spacing is unknown)."""
 
-    fruit_share_cluster: float | None = 0.3
+    fruit_share_cluster: float | None = 0.2
     """With a cloud that knows its fruit diameter D: ``min_cluster_size`` = this x the points a fruit shows (the
     median number of cloud points within D / 2 of a point, measured on the cloud), which follows the image
     resolution, the views and the export voxel without a reference. None: the spacing-scaled value."""
 
-    fruit_share_keep: float | None = 0.35
+    fruit_share_keep: float | None = 0.25
     """... and ``min_fruit_points`` = this x the points a fruit shows. None: the spacing-scaled value."""
 
     reference_fruit_diameter_m: float | None = 0.075

@@ -27,6 +27,11 @@ class ExportConfig:
     """Export voxel in fruit diameters (surface merge voxel; also the grid spacing when ``voxel_size_m`` and
     ``grid_points`` are not set)."""
 
+    voxel_pixels: float = 1.0
+    """Surface: the merge voxel is at least this many pixel footprints on the fruit (median distance of the fruit
+    surface points from their camera over the focal length): points of one view are a footprint apart, so finer
+    voxels would hold one view's points each."""
+
     min_opacity: float = 0.5
     """Surface: a fruit ray gives a point only when its rendered opacity reaches this (no point from fog)."""
 
@@ -36,11 +41,11 @@ class ExportConfig:
     min_views: int = 2
     """Surface: a voxel is kept when points of at least this many views fall in it."""
 
-    min_mask_agreement: float = 0.4
+    min_mask_agreement: float = 0.3
     """Surface: ... and when it lies on a fruit pixel in at least this fraction of the training views it projects
     into (fog and leaves in front of a fruit drift off the other views' fruit masks)."""
 
-    mask_dilation_px: int = 1
+    mask_dilation_px: int = 2
     """Surface: fruit masks are grown by this many pixels for that test (poses and masks are not exact)."""
 
     max_rays: int = 4_000_000
@@ -114,8 +119,8 @@ class ExportConfig:
             raise ConfigError('ExportConfig: aabb needs 6 numbers: xmin ymin zmin xmax ymax zmax')
         if self.max_points < 1:
             raise ConfigError('ExportConfig: max_points must be >= 1')
-        if not 0 < self.voxel_fruit_fraction <= 2:
-            raise ConfigError('ExportConfig: voxel_fruit_fraction must be in (0, 2]')
+        if not 0 < self.voxel_fruit_fraction <= 2 or self.voxel_pixels < 0:
+            raise ConfigError('ExportConfig: voxel_fruit_fraction must be in (0, 2] and voxel_pixels >= 0')
         if not (0 <= self.min_opacity <= 1 and 0 <= self.surface_fruit_threshold <= 1):
             raise ConfigError('ExportConfig: min_opacity and surface_fruit_threshold must be in [0, 1]')
         if not 0 <= self.min_mask_agreement <= 1 or self.mask_dilation_px < 0:

@@ -3,11 +3,12 @@
 Every fruit pixel of every training view is rendered through the trained field; where its ray terminates (the
 median of its render weights) is a point on a fruit surface. A ray that stays semi-transparent (fog), or ends on
 something the field does not call fruit, gives no point. The points are merged on a voxel grid sized in fruit
-diameters, and a voxel is kept only when at least ``min_views`` different views put a point in it (one view's
-floater is not a fruit) and when it lies on a fruit pixel in at least ``min_mask_agreement`` of the training views
-it projects into (a point of fog or leaf in front of a fruit drifts off the fruit masks of the other views, while a
-fruit's surface stays on them wherever it is not hidden). No threshold here is a density in 1/m, so nothing depends
-on how opaque a briefly trained field became or on the size of the scene box.
+diameters (or in pixel footprints on the fruit, when a pixel is wider), and a voxel is kept only when at least
+``min_views`` different views put a point in it (one view's floater is not a fruit) and when it lies on a fruit
+pixel in at least ``min_mask_agreement`` of the training views it projects into (a point of fog or leaf in front of
+a fruit drifts off the fruit masks of the other views, while a fruit's surface stays on them wherever it is not
+hidden). No threshold here is a density in 1/m, so nothing depends on how opaque a briefly trained field became or
+on the size of the scene box.
 """
 
 from __future__ import annotations
@@ -195,7 +196,8 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
     hits, n_pixels = _fruit_pixels(dataset.semantic_masks, views, config.max_rays)   # [M, 3]: (view, row, col)
     view_of = hits[:, 0]
     poses, intrinsics = T_world_camera.to(device), dataset.intrinsics.to(device)
-    parts: dict[str, list[torch.Tensor]] = {k: [] for k in ('xyz', 'view', 'emb', 'rgb', 'prob')}
+    parts: dict[str, list[torch.Tensor]] = {k: [] for k in ('xyz', 'view', 'emb', 'rgb', 'prob', 'footprint')}
+    focal = torch.sqrt(intrinsics[:, 0] * intrinsics[:, 1])
     n_opaque = n_fruit = 0
     # a ray holds up to box diagonal / step samples before empty-space skipping: bound the samples of a chunk
     per_ray = float(torch.linalg.norm(grid.aabb[1] - grid.aabb[0])) / settings.step
@@ -221,9 +223,12 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
         parts['emb'].append(F.normalize(out.embedding[idx], dim=-1))
         parts['rgb'].append(out.rgb[idx].float().clamp(0, 1))
         parts['prob'].append(prob[idx].clamp(0, 1))
+        parts['footprint'].append(out.depth[idx] / focal[view[idx]])     # a pixel's width on the surface (m)
         if (c + 1) % max(1, n_chunks // 20) == 0 or c + 1 == n_chunks:
             progress(ProgressEvent(Phase.EXPORT, c + 1, n_chunks, f'{n_fruit} fruit surface points'))
-    voxel = config.voxel_fruit_fraction * fruit_diameter_m
+    # voxels no finer than a pixel on the fruit: finer ones would hold one view's points each
+    footprint = float(torch.cat(parts['footprint']).median()) if n_fruit else 0.0
+    voxel = max(config.voxel_fruit_fraction * fruit_diameter_m, config.voxel_pixels * footprint)
     dim = field.embedding_dim
     n_voxels = n_multi = n_kept = 0
     cloud = FruitPointCloud.empty(dim, spacing_m=voxel)

@@ -42,7 +42,8 @@ def _surface_gap(xyz: np.ndarray, scene: Path) -> np.ndarray:
 
 def test_points_lie_on_the_fruit_surfaces_and_count_as_the_fruits(scene: Path) -> None:
     cloud, report = _export(scene, SphereNeRF(scene))
-    assert report.n_kept == len(cloud) > 0 and report.voxel_size_m == pytest.approx(FRUIT_D / 8)
+    # 64 px views 3.2 m away: a pixel is ~4.6 cm on the fruit, wider than d / 8 = 2 cm: the voxel follows the pixel
+    assert report.n_kept == len(cloud) > 0 and 0.035 < report.voxel_size_m < 0.06
     assert np.all(_surface_gap(cloud.xyz, scene) < 0.6 * report.voxel_size_m + SETTINGS.step)
     spheres = np.load(scene / 'spheres.npz')
     fruit, leaf = spheres['is_fruit'], ~spheres['is_fruit']

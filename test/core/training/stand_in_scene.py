@@ -32,8 +32,8 @@ def make_sphere_scene(out_dir: Path, *, views: int = 24, size: int = 64, fruits:
                       write_ply: bool = False, distance: float = 3.2) -> Path:
     """Write a transforms.json dataset of a sphere 'tree' into ``out_dir``; returns ``out_dir``.
 
-    ``distance``: of the cameras from the tree centre (m). Fruit centres are stored in ``fruit_centres.npy`` (metres), every sphere in ``spheres.npz`` (centres, radii,
-    is_fruit), so tests can build the exact field.
+    ``distance``: of the cameras from the tree centre (m). Fruit centres are stored in ``fruit_centres.npy``
+    (metres), every sphere in ``spheres.npz`` (centres, radii, is_fruit), so tests can build the exact field.
     """
     rng = np.random.default_rng(seed)
     out_dir = Path(out_dir)
