@@ -41,13 +41,10 @@ class DataConfig:
     what the cameras see around it."""
     aabb_padding: float = 0.05
     """Derived box grown by this fraction of its largest side on every face."""
-    box_margin_m: float | None = 1.0
-    """The camera-derived box is cut to the fruit region (where the fruit masks of many views agree, see
-    ``scale``) grown by this margin (m): room for the canopy, the ground under the tree and what hides the fruit.
-    None keeps the whole camera-derived box."""
-    camera_clearance: float = 0.5
-    """... and by at most this fraction of the cameras' median distance from the fruit region, so the box stops
-    short of the cameras (space next to one camera fills with floaters)."""
+    box_margin_m: float | None = 0.5
+    """Across (x, y) the camera-derived box is cut to the fruit region (where the fruit masks of many views agree,
+    see ``scale``) and the cameras, grown by this margin (m); its height is kept (training/scene_box.py). None keeps
+    the whole camera-derived box."""
     min_fruit_pixels: int = 4
     """Fruit masks with fewer pixels are ignored by the group sampler."""
 

@@ -30,19 +30,15 @@ def measure_scene(dataset: SceneDataset, config: TrainConfig, device: torch.devi
     return build_scene_box(config, cameras, scale, centres), scale
 
 
-def _camera_clearance(region: np.ndarray, camera_centres: np.ndarray) -> float:
-    """Median distance (m) of the cameras from the fruit region box (0 for a camera inside it)."""
-    outside = np.maximum(region[0] - camera_centres, 0.0) + np.maximum(camera_centres - region[1], 0.0)
-    return float(np.median(np.linalg.norm(outside, axis=1)))
-
-
 def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
                     camera_centres: np.ndarray | None = None) -> np.ndarray:
-    """``config.data.aabb`` when set; else the cameras' box cut to the fruit region grown by a margin.
+    """``config.data.aabb`` when set; else the cameras' box, cut across (x, y) to the fruit region and the cameras.
 
-    The margin is ``box_margin_m``, at most ``camera_clearance`` of the cameras' median distance from the fruit
-    region: the box stops well short of the cameras (space around a camera is seen by one view only and fills with
-    floaters that shadow the fruit).
+    The box holds the cameras and the fruit region with ``box_margin_m`` to spare, and keeps the camera box's full
+    height (the ground under the tree stays in). It must reach past the cameras: a view sees ground and sky beyond
+    the tree, and what a box cannot hold behind the tree is painted on its far face, which, unless it lies behind
+    the cameras on the other side of the tree, stands in front of their views (a robot row with the box cut 0.5 m
+    from the fruit: held-out PSNR 16 dB; with the far faces behind the other side's cameras: 22 dB).
 
     Raises:
         DatasetError: an explicit box with max <= min on an axis, or a cut that leaves nothing.
@@ -52,15 +48,19 @@ def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
         if not np.all(box[1] > box[0]):
             raise DatasetError(f'data.aabb {config.data.aabb}: max must exceed min on every axis')
         return box
-    box = np.asarray(cameras, np.float64)
+    box = np.asarray(cameras, np.float64).copy()
     margin = config.data.box_margin_m
     if margin is None or scale.fruit_region is None:
         return box
     region = scale.fruit_region
     if camera_centres is not None and len(camera_centres):
-        margin = min(margin, config.data.camera_clearance * _camera_clearance(region, camera_centres))
-    cut = np.stack([np.maximum(box[0], region[0] - margin), np.minimum(box[1], region[1] + margin)])
-    if not np.all(cut[1] > cut[0]):
+        lo = np.minimum(region[0], camera_centres.min(0)) - margin
+        hi = np.maximum(region[1], camera_centres.max(0)) + margin
+    else:
+        lo, hi = region[0] - margin, region[1] + margin
+    box[0, :2] = np.maximum(box[0, :2], lo[:2])
+    box[1, :2] = np.minimum(box[1, :2], hi[:2])
+    if not np.all(box[1] > box[0]):
         raise DatasetError(f'the fruit region {np.round(region, 3).tolist()} lies outside the cameras\' box '
-                           f'{np.round(box, 3).tolist()}: check the poses\' frame and the masks')
-    return cut
+                           f'{np.round(cameras, 3).tolist()}: check the poses\' frame and the masks')
+    return box
