@@ -25,7 +25,7 @@ from fruitnerfpp_ros.nodes.conversions import points_from_cloud_msg
 from fruitnerfpp_ros.nodes.log import LogLevel
 from fruitnerfpp_ros.nodes.params import settings_from_parameters
 from fruitnerfpp_ros.nodes.results import OUTPUT_TOPICS
-from test.accuracy_targets import expect_accuracy
+from test.accuracy_targets import assert_counted
 from test.shared_fixtures import TINY_SCENE
 
 #: The scene of the shared ``tiny_apple_dataset`` fixture (same config and seed -> the same tree and views).
@@ -110,7 +110,7 @@ def test_replay_writes_results_mcap_readable_by_rosbags_and_mcap(bags: dict[str,
     assert report['total'] == count and report['frame_id'] == 'map' and report['keyframes'] == SCENE['views']
 
     check_results_mcap(result)
-    expect_accuracy(abs(count - 20) <= 2, f'counted {count}, ground truth 20')  # the fixture tree has 20 apples
+    assert_counted(count, 20)  # the fixture tree has 20 apples
 
 
 def test_replay_cli_collects_and_reports_errors_in_one_line(bags: dict[str, Path], tmp_path: Path,

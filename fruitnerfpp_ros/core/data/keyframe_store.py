@@ -232,6 +232,13 @@ class KeyframeStore:
         with self._lock:
             return list(self._frames)
 
+    @property
+    def intrinsics(self) -> CameraIntrinsics | None:
+        """The keyframes' shared intrinsics (a frame's own ``FrameEntry.intrinsics`` overrides them); None before
+        the first keyframe."""
+        with self._lock:
+            return self._intrinsics
+
     def offer(self, keyframe: Keyframe) -> KeyframeDecision:
         """Keep ``keyframe`` if it passes the selection; write it to disk at once when kept.
 
@@ -295,13 +302,7 @@ class KeyframeStore:
             for path in paths:
                 path.unlink(missing_ok=True)
             self.write_errors += 1
-            reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
-            if isinstance(err.__cause__, OSError) and err.__cause__.strerror:
-                reason = err.__cause__.strerror
-            try:
-                reason += f'; {shutil.disk_usage(self.directory).free // 1024} KiB free on its disk'
-            except OSError:
-                pass
+            reason = self._write_failure(err)
             self.last_write_error = (f'{self.directory}: keyframe {index} not stored ({reason}); the {index} '
                                      'keyframe(s) stored before are intact')
             raise DatasetError(self.last_write_error) from err
@@ -312,6 +313,17 @@ class KeyframeStore:
             self._last_T = np.asarray(keyframe.T_world_optical, dtype=np.float64)
         self._index_dirty = True
         self._write_index()
+
+    def _write_failure(self, err: Exception) -> str:
+        """Why a write failed, and the room left on the disk (a full disk is the usual cause)."""
+        reason = err.strerror if isinstance(err, OSError) and err.strerror else str(err)
+        if isinstance(err.__cause__, OSError) and err.__cause__.strerror:
+            reason = err.__cause__.strerror
+        try:
+            reason += f'; {shutil.disk_usage(self.directory).free // 1024} KiB free on its disk'
+        except OSError:
+            pass
+        return reason
 
     def _write_index(self, *, force: bool = False) -> None:
         """Rewrite transforms.json when due (every keyframe while few, then every ``index_period_s``) or forced.
@@ -326,7 +338,7 @@ class KeyframeStore:
             write_transforms(self.directory, self._transforms(self._frames))
         except OSError as err:
             self.write_errors += 1
-            self.last_write_error = (f'{self.directory}: cannot rewrite {TRANSFORMS_NAME} ({err.strerror or err}); '
+            self.last_write_error = (f'{self.directory}: cannot rewrite {TRANSFORMS_NAME} ({self._write_failure(err)}); '
                                      f'the keyframes are safe in the journal and it is retried')
             return
         self._index_dirty = False

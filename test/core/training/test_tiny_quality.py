@@ -15,7 +15,6 @@ from fruitnerfpp_ros.core.fields.fruit_field import FruitField
 from fruitnerfpp_ros.core.training import RunDir, load_trained_scene
 from fruitnerfpp_ros.core.training.model import occupancy_grid
 from fruitnerfpp_ros.core.training.metrics import evaluate_views
-from test.accuracy_targets import expect_accuracy
 
 
 def _untrained(run: Path) -> tuple[float, float]:
@@ -38,9 +37,8 @@ def test_tiny_run_beats_untrained_and_separates_fruit(tiny_trained_run: Path) ->
     psnr0, iou0 = _untrained(tiny_trained_run)
     assert last['eval_psnr'] > psnr0 + 5.0
     assert last['eval_semantic_iou'] > iou0 + 0.05
-    assert last['eval_instance_acc'] >= 0.7  # regression guard; the target (0.9) follows
-    expect_accuracy(last['eval_instance_acc'] >= 0.9,
-                    f"held-out instance accuracy {last['eval_instance_acc']:.3f} (target 0.9)")
+    # views with >= 2 fruits only, ties split: a constant embedding scores eval_instance_chance (~0.06 here)
+    assert last['eval_instance_acc'] >= 0.85 > 5 * last['eval_instance_chance']
 
 
 def test_trained_scene_answers_queries_for_export(tiny_trained_run: Path) -> None:
