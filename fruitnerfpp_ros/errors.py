@@ -17,6 +17,7 @@ __all__ = [
     'BagError',
     'ConversionError',
     'SegmentationError',
+    'OrchardError',
 ]
 
 
@@ -66,3 +67,7 @@ class ConversionError(FruitNerfError):
 
 class SegmentationError(FruitNerfError):
     """Instance masks cannot be computed: a segmenter's package or checkpoint is missing, or its output is unusable."""
+
+
+class OrchardError(FruitNerfError):
+    """A row cannot be cut, counted per tree or georeferenced: no row axis, a bad planting map or datum, no GNSS."""

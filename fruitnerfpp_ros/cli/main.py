@@ -17,7 +17,7 @@ from fruitnerfpp_ros.errors import FruitNerfError
 __all__ = ['main', 'build_parser']
 
 #: Modules under ``fruitnerfpp_ros.cli`` that register subcommands, in help order.
-SUBCOMMAND_MODULES = ('synth', 'segment', 'train', 'results', 'track', 'replay', 'demo', 'bench')
+SUBCOMMAND_MODULES = ('synth', 'segment', 'train', 'results', 'track', 'replay', 'orchard', 'demo', 'bench')
 
 
 def build_parser() -> argparse.ArgumentParser:

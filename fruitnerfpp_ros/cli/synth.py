@@ -13,6 +13,9 @@ Example::
     # an RGB-D camera: depths/ (16-bit mm) and a 16UC1 depth topic, with a stereo camera's errors
     fruitnerfpp synth --fruit apple --count 20 --views 48 --resolution 96 --depth --out rgbd --bag rgbd_bag
 
+    # a row of 5 trees (20 apples each on average) driven on both sides, with GNSS fixes in the bag
+    fruitnerfpp synth --scene row --trees 5 --count 20 --views 160 --resolution 240 180 --gnss --out row5 --bag row5_bag
+
 Every flag overrides the same-named field of :class:`~fruitnerfpp_ros.core.synthetic.SynthConfig` (and of
 ``--config`` YAML); a flag left out keeps the YAML's or the default value.
 """
@@ -141,6 +144,22 @@ def register(subparsers: Any) -> None:
     parser.add_argument('--pose-noise', nargs=2, metavar=('METRES', 'DEGREES'),
                         help='odometry error: per-axis standard deviations of noise on the recorded camera positions '
                              'and orientations (images stay rendered from the true poses)')
+    row = parser.add_argument_group('a row of trees (--scene row)')
+    row.add_argument('--scene', choices=('tree', 'row'), default='tree',
+                     help='tree (default): one tree; row: a row of --trees trees whose canopies touch or overlap, '
+                          'driven on both sides (the row trajectory; --count = mean fruits per tree); writes '
+                          'gt_trees.json and a planting map too')
+    row.add_argument('--trees', type=int, help='row: number of trees (default 5)')
+    row.add_argument('--tree-spacing', type=float, metavar='M',
+                     help='row: trunk spacing along the row, m (default: neighbouring canopies overlap by 10%%)')
+    row.add_argument('--gnss', action='store_true',
+                     help='row: GNSS fixes of an antenna 0.5 m above the camera (5 Hz, RTK noise 2 cm / 4 cm): '
+                          'sensor_msgs/NavSatFix on /gnss/fix in the bag and gnss.json')
+    row.add_argument('--gnss-noise', nargs=2, type=float, metavar=('HORIZONTAL', 'VERTICAL'),
+                     help='row: standard deviation of the fixes, m (default 0.02 0.04)')
+    row.add_argument('--datum', nargs='+', type=float, metavar='V',
+                     help='row: LAT LON ALT [YAW_DEG] of the world origin and the heading of the row (x axis, '
+                          'counter-clockwise from east); recorded in transforms.json')
     parser.add_argument('--out', required=True, help='output dataset directory')
     parser.add_argument('--bag', help='also write a rosbag2 directory here')
     parser.add_argument('--bag-storage', default='mcap', help='mcap (default) or sqlite3')
@@ -175,10 +194,43 @@ def _config_from_args(args: argparse.Namespace) -> Any:
     return dataclasses.replace(base, **overrides)
 
 
+def _row_config(args: argparse.Namespace) -> Any:
+    """The RowSceneConfig of the row flags (``--scene row``)."""
+    from fruitnerfpp_ros.core.synthetic.row_scene import RowSceneConfig
+
+    values: dict[str, Any] = {'gnss': bool(args.gnss)}
+    if args.trees is not None:
+        values['trees'] = args.trees
+    if args.tree_spacing is not None:
+        values['tree_spacing_m'] = args.tree_spacing
+    if args.gnss_noise is not None:
+        values['gnss_noise_m'] = tuple(args.gnss_noise)
+    if args.datum is not None:
+        if len(args.datum) not in (3, 4):
+            raise SynthError('--datum: expected LAT LON ALT [YAW_DEG]')
+        values['datum'] = tuple(args.datum[:3])
+        if len(args.datum) == 4:
+            values['datum_yaw_deg'] = args.datum[3]
+    try:
+        return RowSceneConfig(**values)
+    except ConfigError as err:
+        raise SynthError(str(err)) from err
+
+
+def _check_row_flags(args: argparse.Namespace) -> None:
+    used = [flag for flag, value in (('--trees', args.trees), ('--tree-spacing', args.tree_spacing),
+                                     ('--gnss-noise', args.gnss_noise), ('--datum', args.datum)) if value is not None]
+    if args.gnss:
+        used.append('--gnss')
+    if used and args.scene != 'row':
+        raise SynthError(f'{", ".join(used)}: only with --scene row')
+
+
 def run(args: argparse.Namespace) -> int:
     """Run ``synth`` from parsed arguments; returns the exit code."""
     from fruitnerfpp_ros.core.synthetic import generate_orchard
 
+    _check_row_flags(args)
     config = _config_from_args(args)
     bar: Any = None
 
@@ -195,8 +247,13 @@ def run(args: argparse.Namespace) -> int:
         bar.refresh()
 
     try:
-        result = generate_orchard(config, Path(args.out), bag=args.bag, bag_storage=args.bag_storage,
-                                  preview=args.preview, progress=on_progress)
+        if args.scene == 'row':
+            from fruitnerfpp_ros.core.synthetic.row_scene import generate_row
+            result = generate_row(config, _row_config(args), Path(args.out), bag=args.bag,
+                                  bag_storage=args.bag_storage, preview=args.preview, progress=on_progress)
+        else:
+            result = generate_orchard(config, Path(args.out), bag=args.bag, bag_storage=args.bag_storage,
+                                      preview=args.preview, progress=on_progress)
     finally:
         if bar is not None:
             bar.close()

@@ -13,7 +13,8 @@ Interface (see docs/ros_interface.md): inputs ``image_topic`` / ``camera_info_to
 segmenter, ``mask_source``) / pose (``pose_topic``, ``odometry_topic`` or /tf + /tf_static) / optional
 ``depth_topic``; services ``~/train``,
 ``~/reset``, ``~/save`` (std_srvs/Trigger); latched outputs ``~/fruit_count``, ``~/fruit_report``, ``~/fruit_cloud``,
-``~/fruit_centers``, ``~/fruit_markers``; ``/diagnostics``.
+``~/fruit_centers``, ``~/fruit_markers``; ``/diagnostics``. With ``row_mode`` (:mod:`.row_counter`) the row is
+counted segment by segment while it is driven: ``~/tree_counts``, ``~/tree_markers`` and a running ``~/fruit_count``.
 """
 
 from __future__ import annotations
@@ -41,6 +42,7 @@ from fruitnerfpp_ros.nodes.frame_assembler import FrameAssembler
 from fruitnerfpp_ros.nodes.log import LogLevel, ThrottledLog
 from fruitnerfpp_ros.nodes.mask_source import mask_source_from_settings
 from fruitnerfpp_ros.nodes.params import declare_parameters, keyframe_config, settings_mapping
+from fruitnerfpp_ros.nodes.row_params import declare_row_parameters
 from fruitnerfpp_ros.nodes.results import DIAGNOSTICS_TOPIC, OUTPUT_TOPICS, diagnostics_msg, write_report
 from fruitnerfpp_ros.nodes.node_main import spin_node
 from fruitnerfpp_ros.nodes.status import NodeState, NodeStatus, RunStatus
@@ -70,14 +72,16 @@ class FruitCounterNode(Node):
     def __init__(self, node_name: str = 'fruit_counter', **kwargs: Any) -> None:
         super().__init__(node_name, **kwargs)
         self.settings = declare_parameters(self)
+        self.row_settings = declare_row_parameters(self)
         s = self.settings
         # a segmenter loads its model first: a bad checkpoint stops the node (spin_node prints the error) before
         # any run folder exists
         mask_source = mask_source_from_settings(s)
         self.run_dir = Path(s.output_dir).expanduser() if s.output_dir else default_output_dir()
         self.run_dir.mkdir(parents=True, exist_ok=True)
+        row_values = settings_mapping(self.row_settings) if self.row_settings.row_mode else {}
         (self.run_dir / 'params.yaml').write_text(yaml.safe_dump(
-            {'/**': {'ros__parameters': settings_mapping(s)}}, sort_keys=False))
+            {'/**': {'ros__parameters': {**settings_mapping(s), **row_values}}}, sort_keys=False))
         self.store = KeyframeStore(self.run_dir / 'keyframes', keyframe_config(s))
         self.assembler = FrameAssembler(s, self.store, self._log, mask_source=mask_source)
         self._warn_throttled = ThrottledLog(self._log, period_s=30.0)
@@ -131,6 +135,7 @@ class FruitCounterNode(Node):
             self._result_pubs[topic.name] = self.create_publisher(msg_class, f'~/{topic.name}', LATCHED_QOS)
         from diagnostic_msgs.msg import DiagnosticArray
         self._diagnostics_pub = self.create_publisher(DiagnosticArray, DIAGNOSTICS_TOPIC, 10)
+        self.row = self._start_row_mode(inputs) if self.row_settings.row_mode else None
 
         # Work: tick (processing) and services / diagnostics in separate groups, so neither blocks the other.
         from std_srvs.srv import Trigger
@@ -197,6 +202,9 @@ class FruitCounterNode(Node):
             self._index_flushed = now
             self.store.flush()
         s = self.settings
+        if self.row is not None:
+            self.row.tick()
+            return
         if s.auto_train_after and not self._auto_started and len(self.store) >= s.auto_train_after:
             self._auto_started = True
             ok, message = self.start_training()
@@ -241,8 +249,32 @@ class FruitCounterNode(Node):
 
     # ------------------------------------------------------------------ services
     def _on_train(self, request: Any, response: Any) -> Any:
-        response.success, response.message = self.start_training()
+        response.success, response.message = self.row.flush() if self.row is not None else self.start_training()
         return response
+
+    def _start_row_mode(self, group: Any) -> Any:
+        """Row mode: the row publishers, the GNSS subscription and the row counter (its worker thread)."""
+        import importlib
+
+        from fruitnerfpp_ros.core.orchard.gnss import GnssFix
+        from fruitnerfpp_ros.nodes.row_counter import RowCounter
+        from fruitnerfpp_ros.nodes.row_results import ROW_OUTPUT_TOPICS
+        for topic in ROW_OUTPUT_TOPICS:
+            package, _, name = topic.msg_type.split('/')
+            msg_class = getattr(importlib.import_module(f'{package}.msg'), name)
+            self._result_pubs[topic.name] = self.create_publisher(msg_class, f'~/{topic.name}', LATCHED_QOS)
+        row = RowCounter(self.run_dir, self.store, self.settings, self.row_settings, self._log, self._publish_results)
+        if self.row_settings.gnss_topic:
+            from sensor_msgs.msg import NavSatFix
+
+            def on_fix(msg: Any) -> None:
+                stamp = int(msg.header.stamp.sec) * 1_000_000_000 + int(msg.header.stamp.nanosec)
+                known = int(msg.position_covariance_type) > 0
+                row.on_fix(GnssFix(stamp, msg.latitude, msg.longitude, msg.altitude,
+                                   tuple(msg.position_covariance) if known else None, int(msg.status.status)))
+            self.create_subscription(NavSatFix, self.row_settings.gnss_topic, on_fix, 50, callback_group=group)
+        self.get_logger().info(f'row mode: segments trained as the robot passes them ({row.dir})')
+        return row
 
     def _on_reset(self, request: Any, response: Any) -> Any:
         """Answers at once: a running training is told to stop (and never resumed), the keyframes move aside."""
@@ -306,9 +338,9 @@ class FruitCounterNode(Node):
                                        silent_topics=tuple(self.assembler.topic_of(r) for r in silent),
                                        dropped_per_topic=dropped, write_error=write_error,
                                        received_per_topic=received)
+        values = {**status.values(), **(self.row.diagnostics() if self.row is not None else {})}
         self._diagnostics_pub.publish(diagnostics_msg(f'{self.get_name()}: pipeline', self.get_name(), status.level,
-                                                      status.message(), status.values(),
-                                                      self.get_clock().now().nanoseconds))
+                                                      status.message(), values, self.get_clock().now().nanoseconds))
 
 
 def main(args: list[str] | None = None) -> int:
@@ -319,6 +351,8 @@ def main(args: list[str] | None = None) -> int:
 
 def _shutdown(node: FruitCounterNode) -> None:
     node.stop_training(timeout_s=5.0)  # the run checkpoints; a restart resumes it
+    if node.row is not None:
+        node.row.stop(timeout_s=5.0)
     node.store.flush()
 
 

@@ -14,6 +14,8 @@ Topics (identical header stamps per frame; images carry frame_id ``camera_optica
                              aligned to the colour image (0 = no return), as realsense2_camera publishes it
 - ``/tf``                    tf2_msgs/msg/TFMessage, ``world`` -> ``base_link``
 - ``/tf_static``             tf2_msgs/msg/TFMessage, ``base_link`` -> ``camera_optical`` (once, latched QoS)
+- ``/gnss/fix``              (``gnss=True``) sensor_msgs/msg/NavSatFix of the GNSS antenna (frame ``gnss_link``), a
+                             few Hz (a row of trees, ``row_scene.py``)
 
 ``base_link`` is chosen so that ``T_world_base_link @ T_base_link_camera_optical`` equals the optical pose.
 """
@@ -41,7 +43,7 @@ from fruitnerfpp_ros.errors import SynthError
 
 __all__ = ['BagWriter', 'TOPICS', 'T_BASE_LINK_CAMERA_OPTICAL', 'BAG_START_NS', 'FRAME_PERIOD_NS',
            'MAP_FRAME', 'BASE_FRAME', 'CAMERA_FRAME', 'STORAGES', 'COMPRESSED_IMAGE_TOPIC', 'JPEG_FORMAT',
-           'DEPTH_TOPIC', 'image_topic']
+           'DEPTH_TOPIC', 'image_topic', 'GNSS_TOPIC', 'GNSS_FRAME']
 
 TOPICS = {
     'image': '/camera/image_raw',
@@ -55,6 +57,8 @@ TOPICS = {
 COMPRESSED_IMAGE_TOPIC = TOPICS['image'] + '/compressed'
 #: The depth topic of a bag written with ``depth=True`` (realsense2_camera's aligned depth).
 DEPTH_TOPIC = '/camera/aligned_depth_to_color/image_raw'
+#: The GNSS topic of a bag written with ``gnss=True`` and the frame_id of its fixes.
+GNSS_TOPIC, GNSS_FRAME = '/gnss/fix', 'gnss_link'
 #: ``CompressedImage.format`` as compressed_image_transport writes it for an rgb8 image encoded as JPEG.
 JPEG_FORMAT = 'rgb8; jpeg compressed bgr8'
 MAP_FRAME, BASE_FRAME, CAMERA_FRAME = 'map', 'base_link', 'camera_optical'
@@ -94,13 +98,14 @@ class BagWriter:
         jpeg_quality: 1..100, for ``jpeg``.
         world_frame: fixed frame of the pose topic and parent of ``base_link`` on /tf.
         depth: also write depth images on :data:`DEPTH_TOPIC` (16UC1 millimetres).
+        gnss: also offer :data:`GNSS_TOPIC` (sensor_msgs/NavSatFix) for :meth:`write_gnss_fix`.
 
     Raises:
         SynthError: unknown storage or image format, or ``path`` exists and is not a bag, or cannot be written.
     """
 
     def __init__(self, path: str | Path, storage: str = 'mcap', *, image_format: str = 'raw', jpeg_quality: int = 90,
-                 world_frame: str = MAP_FRAME, depth: bool = False) -> None:
+                 world_frame: str = MAP_FRAME, depth: bool = False, gnss: bool = False) -> None:
         if storage not in STORAGES:
             raise SynthError(f'unknown bag storage {storage!r}; expected one of {", ".join(STORAGES)}')
         if image_format not in ('raw', 'jpeg'):
@@ -114,6 +119,8 @@ class BagWriter:
         self.topics = {**TOPICS, 'image': image_topic(image_format)}
         if depth:
             self.topics['depth'] = DEPTH_TOPIC
+        if gnss:
+            self.topics['gnss'] = GNSS_TOPIC
         self.typestore = get_typestore(Stores.ROS2_JAZZY)
         self._writer: Writer | None = None
         self._conns: dict[str, Any] = {}
@@ -144,6 +151,8 @@ class BagWriter:
         }
         if 'depth' in topics:
             self._conns['depth'] = w.add_connection(topics['depth'], 'sensor_msgs/msg/Image', typestore=ts)
+        if 'gnss' in topics:
+            self._conns['gnss'] = w.add_connection(topics['gnss'], 'sensor_msgs/msg/NavSatFix', typestore=ts)
         return self
 
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
@@ -234,3 +243,15 @@ class BagWriter:
         self._write('instance_mask', stamp_ns, self._image(stamp_ns, instance.astype(np.uint16), 'mono16'))
         if depth is not None and 'depth' in self._conns:
             self._write('depth', stamp_ns, self._image(stamp_ns, depth_units_from_metres(depth), '16UC1'))
+
+    def write_gnss_fix(self, fix: Any) -> None:
+        """Write one ``sensor_msgs/NavSatFix`` (a :class:`~fruitnerfpp_ros.core.orchard.gnss.GnssFix`: stamp,
+        latitude, longitude, ellipsoidal height, ENU covariance, status) when opened with ``gnss=True``."""
+        T = self.typestore.types
+        status = T['sensor_msgs/msg/NavSatStatus'](status=int(fix.status), service=1)  # SERVICE_GPS
+        covariance = np.zeros(9) if fix.covariance is None else np.asarray(fix.covariance, np.float64)
+        msg = T['sensor_msgs/msg/NavSatFix'](
+            header=self._header(fix.stamp_ns, GNSS_FRAME), status=status, latitude=float(fix.latitude_deg),
+            longitude=float(fix.longitude_deg), altitude=float(fix.altitude_m), position_covariance=covariance,
+            position_covariance_type=0 if fix.covariance is None else 2)  # UNKNOWN / DIAGONAL_KNOWN
+        self._write('gnss', fix.stamp_ns, msg)

@@ -28,7 +28,8 @@ def _round(values: Any, digits: int = 6) -> list[float]:
 def write_gt_fruits(path: Path, fruits: Sequence[GtFruit], visible: np.ndarray,
                     extra: dict[str, Any] | None = None) -> None:
     """Write ``gt_fruits.json``: ``{"fruits": [{"id", "type", "center", "radii", "diameter", "rotation",
-    "views_visible", "n_views_visible"}...], ...extra}``; metres, world frame (z up, ground z = 0).
+    "views_visible", "n_views_visible"(, "tree_id")}...], ...extra}``; metres, world frame (z up, ground z = 0);
+    ``tree_id`` only for fruits of a row of trees (``GtFruit.tree_id`` set).
 
     Args:
         path: the file to write.
@@ -50,6 +51,8 @@ def write_gt_fruits(path: Path, fruits: Sequence[GtFruit], visible: np.ndarray,
             'views_visible': [int(v) for v in views],
             'n_views_visible': len(views),
         })
+        if fruit.tree_id is not None:
+            records[-1]['tree_id'] = int(fruit.tree_id)
     data: dict[str, Any] = dict(extra or {})
     data['fruits'] = records
     path.write_text(json.dumps(data, indent=1, sort_keys=True) + '\n')

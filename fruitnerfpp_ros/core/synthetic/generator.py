@@ -23,6 +23,7 @@ import contextlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -43,6 +44,7 @@ from fruitnerfpp_ros.core.synthetic.dataset_writer import GT_NAME, SPARSE_PLY_NA
 from fruitnerfpp_ros.core.synthetic.lens import is_distorted, undistorted_pixel_grid
 from fruitnerfpp_ros.core.synthetic.preview import preview_view_indices, write_preview
 from fruitnerfpp_ros.core.synthetic.rasterizer import Renderer
+from fruitnerfpp_ros.core.synthetic.primitives import Scene
 from fruitnerfpp_ros.core.synthetic.scene import build_scene, fruit_type_counts
 from fruitnerfpp_ros.errors import ConfigError, SynthError
 
@@ -97,7 +99,9 @@ def _prepare_out_dir(out_dir: Path, n_views: int, depth: bool) -> None:
 
 def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Path | None = None,
                      bag_storage: str = 'mcap', preview: str | Path | None = None,
-                     progress: ProgressCallback | None = None) -> SynthResult:
+                     progress: ProgressCallback | None = None, scene: Scene | None = None,
+                     transforms_extra: Mapping[str, Any] | None = None, gnss_fixes: Sequence[Any] = ()
+                     ) -> SynthResult:
     """Generate one synthetic tree scene into ``out_dir`` (created), optionally a rosbag2 and a preview.
 
     Args:
@@ -107,6 +111,10 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
         bag_storage: ``mcap`` or ``sqlite3``.
         preview: contact sheet PNG path (RGB | instance | semantic of a few views), or None.
         progress: called with ``ProgressEvent(Phase.SYNTH_RENDER, view, views)`` after each view.
+        scene: the scene to render instead of ``build_scene(config)`` (a row of trees: ``row_scene.py``).
+        transforms_extra: top-level keys added to (or replacing) those of transforms.json.
+        gnss_fixes: GNSS fixes (:class:`~fruitnerfpp_ros.core.orchard.gnss.GnssFix`, by stamp) written to the bag
+            as sensor_msgs/NavSatFix between the frames of their stamps (none: no GNSS topic).
 
     Raises:
         SynthError: unwritable output, bad bag path or storage, unknown device, a lens distortion that cannot be
@@ -122,7 +130,8 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     except ConfigError as err:
         raise SynthError(str(err)) from err
 
-    scene = vary_scene_colours(build_scene(config), config.seed, config.appearance_variation)
+    scene = vary_scene_colours(build_scene(config) if scene is None else scene, config.seed,
+                               config.appearance_variation)
     poses = make_poses(scene, config)
     K = make_intrinsics(config)
     pixel_grid = undistorted_pixel_grid(K) if is_distorted(K) else None  # checks the lens before writing
@@ -140,7 +149,8 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     frames = []
     bag_ctx = contextlib.nullcontext() if bag is None else BagWriter(
         bag, bag_storage, image_format=config.bag_image_format, jpeg_quality=config.bag_jpeg_quality,
-        world_frame=config.world_frame, depth=with_depth)
+        world_frame=config.world_frame, depth=with_depth, **({'gnss': True} if gnss_fixes else {}))
+    pending_fixes = list(gnss_fixes)
     progress(ProgressEvent(Phase.SYNTH_RENDER, 0, config.views, f'{n_fruits} fruits'))
     with bag_ctx as bag_writer:
         for i, T in enumerate(poses):
@@ -166,12 +176,16 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
                 pc_points.append(pts)
                 pc_colors.append(cols)
             if bag_writer is not None:
+                while pending_fixes and pending_fixes[0].stamp_ns <= stamp_ns:
+                    bag_writer.write_gnss_fix(pending_fixes.pop(0))
                 bag_writer.write_frame(stamp_ns, view.rgb, view.instance, recorded[i], K, depth)
             if i in preview_idx:
                 preview_rgb.append(view.rgb)
                 preview_inst.append(view.instance)
                 preview_labels.append(f'view {i}')
             progress(ProgressEvent(Phase.SYNTH_RENDER, i + 1, config.views))
+        for fix in pending_fixes if bag_writer is not None else ():
+            bag_writer.write_gnss_fix(fix)
 
     ply_name = None
     if per_view:
@@ -183,6 +197,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
         'fruit_types': sorted(counts),
         'generator': {'name': 'fruitnerfpp synth', 'config': _recorded_config(config)},
         'frame': 'world: z up, metres, ground at z = 0, tree trunk at the origin',
+        **(transforms_extra or {}),
     }
     transforms_path = write_transforms(out_dir, TransformsFile(K, frames, ply_name, extra,
                                                                DEPTH_PNG_UNIT_M if with_depth else None))

@@ -76,6 +76,7 @@ class GtFruit(NamedTuple):
         center: [3] centre, metres, world frame (for a pear: volume-weighted centre of body and neck).
         radii: [3] semi-axes (x, y, z-hanging) of the fruit's bounding ellipsoid, metres.
         rotation: [3, 3] fruit-to-world rotation (z = hanging axis).
+        tree_id: the tree it grows on (a row of trees, ``row_scene.py``), None for a single tree.
     """
 
     id: int
@@ -83,6 +84,7 @@ class GtFruit(NamedTuple):
     center: np.ndarray
     radii: np.ndarray
     rotation: np.ndarray
+    tree_id: int | None = None
 
 
 class Scene(NamedTuple):

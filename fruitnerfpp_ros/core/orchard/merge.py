@@ -1,0 +1,131 @@
+"""One row count from the segments' counts: every fruit once, also where two segments overlap.
+
+Each segment's fruits count within its trusted stretch (:class:`~.segments.Segment`). Two neighbours' trusted
+stretches overlap around their cut; a fruit there is usually counted by both. Such pairs are matched one-to-one by
+3D distance (Hungarian; at most ``match_diameters`` fruit diameters apart) and kept once: the copy of the segment
+whose own stretch holds the pair (it saw the fruit from more central views). A fruit only one of them counted
+stays. Instance embeddings are not used for matching: each segment trains its own instance field, so the
+embeddings of two segments live in unrelated spaces.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple, Sequence
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from fruitnerfpp_ros.core.orchard.config import MergeConfig
+from fruitnerfpp_ros.core.orchard.row_frame import RowFrame
+from fruitnerfpp_ros.core.orchard.segments import Segment
+
+__all__ = ['SegmentFruits', 'RowFruits', 'merge_segments']
+
+
+class SegmentFruits(NamedTuple):
+    """The fruits one segment counted (world frame).
+
+    Attributes:
+        segment: the segment's index.
+        centers: [K, 3] metres; diameters: [K] metres; n_points: [K] cloud points of each fruit.
+        ids: [K] the fruit ids of the segment's own count (counts.json, its cloud's instance ids).
+    """
+
+    segment: int
+    centers: np.ndarray
+    diameters: np.ndarray
+    n_points: np.ndarray
+    ids: np.ndarray
+
+    @classmethod
+    def empty(cls, segment: int) -> 'SegmentFruits':
+        return cls(segment, np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+class RowFruits(NamedTuple):
+    """The row's fruits, each once, ordered along the row (row fruit id = position + 1).
+
+    Attributes:
+        centers: [M, 3]; diameters: [M]; n_points: [M]; along: [M] s along the row (m).
+        segments: [M] the segment whose copy was kept; local_ids: [M] its id in that segment's count.
+        matched: [M] bool: two neighbouring segments counted it (the pair became this one fruit).
+        dropped_off_row: fruits left out for lying further than ``max_lateral_m`` from the centre line.
+        dropped_untrusted: fruits left out for lying outside their segment's trusted stretch.
+    """
+
+    centers: np.ndarray
+    diameters: np.ndarray
+    n_points: np.ndarray
+    along: np.ndarray
+    segments: np.ndarray
+    local_ids: np.ndarray
+    matched: np.ndarray
+    dropped_off_row: int = 0
+    dropped_untrusted: int = 0
+
+    def __len__(self) -> int:
+        return len(self.centers)
+
+
+def _pairs(a: np.ndarray, da: np.ndarray, b: np.ndarray, db: np.ndarray, config: MergeConfig) -> np.ndarray:
+    """[P, 2] one-to-one index pairs (into a, b) of centres closer than the match reach."""
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((0, 2), np.int64)
+    dist = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    reach = config.match_diameters * np.maximum(np.maximum(da[:, None], db[None, :]), config.min_diameter_m)
+    cost = np.where(dist <= reach, dist, 1e6)
+    rows, cols = linear_sum_assignment(cost)
+    ok = cost[rows, cols] < 1e6
+    return np.stack([rows[ok], cols[ok]], axis=1)
+
+
+def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequence[SegmentFruits | None],
+                   config: MergeConfig = MergeConfig()) -> RowFruits:
+    """Join the segments' counts (None: the segment has no count, e.g. it failed) into the row's fruits."""
+    by_index = {seg.index: seg for seg in segments}
+    kept: dict[int, np.ndarray] = {}          # segment -> bool mask over its fruits
+    along: dict[int, np.ndarray] = {}
+    off_row = untrusted = 0
+    for count in counts:
+        if count is None:
+            continue
+        seg = by_index[count.segment]
+        s = frame.along(count.centers) if len(count.centers) else np.zeros(0)
+        on_row = np.abs(frame.across(count.centers)) <= config.max_lateral_m if len(count.centers) \
+            else np.zeros(0, bool)
+        trusted = (s >= seg.trust[0]) & (s <= seg.trust[1])
+        off_row += int((~on_row).sum())
+        untrusted += int((on_row & ~trusted).sum())
+        kept[count.segment], along[count.segment] = on_row & trusted, s
+    done = {c.segment: c for c in counts if c is not None}
+    order = sorted(done)
+    matched: dict[int, np.ndarray] = {k: np.zeros(len(done[k].centers), bool) for k in order}
+    for k, k_next in zip(order[:-1], order[1:]):
+        a_seg, b_seg = by_index[k], by_index[k_next]
+        lo, hi = b_seg.trust[0], a_seg.trust[1]
+        if hi <= lo:
+            continue
+        a, b = done[k], done[k_next]
+        ia = np.flatnonzero(kept[k] & (along[k] >= lo) & (along[k] <= hi))
+        ib = np.flatnonzero(kept[k_next] & (along[k_next] >= lo) & (along[k_next] <= hi))
+        for pa, pb in _pairs(a.centers[ia], a.diameters[ia], b.centers[ib], b.diameters[ib], config):
+            i, j = ia[pa], ib[pb]
+            middle = 0.5 * (along[k][i] + along[k_next][j])
+            if middle <= a_seg.core[1]:     # keep the copy of the segment whose own stretch holds the pair
+                kept[k_next][j], matched[k][i] = False, True
+            else:
+                kept[k][i], matched[k_next][j] = False, True
+    parts = [(k, np.flatnonzero(kept[k])) for k in order]
+    centers = np.concatenate([done[k].centers[i] for k, i in parts]) if parts else np.zeros((0, 3))
+    s_all = np.concatenate([along[k][i] for k, i in parts]) if parts else np.zeros(0)
+    rank = np.argsort(s_all, kind='stable')
+
+    def gather(values: dict[int, np.ndarray] | None, name: str = '') -> np.ndarray:
+        if not parts:
+            return np.zeros(0)
+        return np.concatenate([(getattr(done[k], name) if values is None else values[k])[i] for k, i in parts])[rank]
+
+    segs = np.concatenate([np.full(len(i), k) for k, i in parts])[rank] if parts else np.zeros(0, np.int64)
+    return RowFruits(centers.reshape(-1, 3)[rank], gather(None, 'diameters'), gather(None, 'n_points'),
+                     s_all[rank], segs.astype(np.int64), gather(None, 'ids').astype(np.int64),
+                     gather(matched).astype(bool), off_row, untrusted)

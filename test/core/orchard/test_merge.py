@@ -1,0 +1,55 @@
+"""Every fruit once: a fruit straddling a cut is counted by both segments and kept once."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fruitnerfpp_ros.core.orchard.config import MergeConfig
+from fruitnerfpp_ros.core.orchard.merge import SegmentFruits, merge_segments
+from fruitnerfpp_ros.core.orchard.row_frame import RowFrame
+from fruitnerfpp_ros.core.orchard.segments import Segment
+
+FRAME = RowFrame(np.array([0.0, 0.0]), np.array([1.0, 0.0]))
+#: Two segments cut at s = 1 with a 0.5 m margin: trusted up to 0.3 m beyond the cut.
+SEGMENTS = [Segment(0, (0.0, 1.0), (-0.3, 1.3), (-0.5, 1.5), (0, 1, 2)),
+            Segment(1, (1.0, 2.0), (0.7, 2.3), (0.5, 2.5), (2, 3, 4))]
+
+
+def _fruits(segment: int, centers: list[list[float]]) -> SegmentFruits:
+    c = np.array(centers, np.float64)
+    return SegmentFruits(segment, c, np.full(len(c), 0.07), np.full(len(c), 50), np.arange(1, len(c) + 1))
+
+
+def test_a_fruit_straddling_the_cut_is_counted_once() -> None:
+    a = _fruits(0, [[0.2, 0.1, 1.0], [1.01, 0.0, 1.2], [1.25, -0.2, 0.9], [1.45, 0.0, 1.0], [0.5, 2.0, 1.0]])
+    b = _fruits(1, [[0.98, 0.01, 1.21], [1.6, 0.1, 1.1], [0.6, 0.0, 1.0]])
+    row = merge_segments(FRAME, SEGMENTS, [a, b])
+    # kept: 0.2 (a), the straddling fruit once (a's copy: the pair's middle lies in a's stretch), 1.25 (a only), 1.6
+    # (b); dropped: 1.45 and 0.6 (outside their segment's trusted stretch), l = 2 (off the row)
+    assert len(row) == 4
+    assert np.allclose(row.along, [0.2, 1.01, 1.25, 1.6])
+    assert row.segments.tolist() == [0, 0, 0, 1] and row.local_ids.tolist() == [1, 2, 3, 2]
+    assert row.matched.tolist() == [False, True, False, False]
+    assert row.dropped_untrusted == 2 and row.dropped_off_row == 1
+
+
+def test_the_copy_of_the_segment_holding_the_pair_is_kept() -> None:
+    a = _fruits(0, [[1.04, 0.0, 1.0]])
+    b = _fruits(1, [[1.08, 0.0, 1.0]])
+    row = merge_segments(FRAME, SEGMENTS, [a, b])
+    assert len(row) == 1 and row.segments.tolist() == [1] and np.allclose(row.centers[0], [1.08, 0.0, 1.0])
+
+
+def test_two_touching_fruits_at_the_cut_stay_two() -> None:
+    a = _fruits(0, [[0.98, 0.0, 1.0], [1.055, 0.0, 1.0]])
+    b = _fruits(1, [[0.985, 0.01, 1.0], [1.05, 0.0, 1.01]])
+    row = merge_segments(FRAME, SEGMENTS, [a, b], MergeConfig(match_diameters=1.0))
+    assert len(row) == 2 and row.matched.all()
+
+
+def test_a_failed_segment_leaves_a_gap_and_the_rest_counts() -> None:
+    a = _fruits(0, [[0.5, 0.0, 1.0], [1.2, 0.0, 1.0]])
+    row = merge_segments(FRAME, SEGMENTS, [a, None])
+    assert len(row) == 2 and not row.matched.any()
+    empty = merge_segments(FRAME, SEGMENTS, [None, None])
+    assert len(empty) == 0 and empty.centers.shape == (0, 3)
