@@ -16,10 +16,14 @@ setup(
         (f'share/{PACKAGE}', ['package.xml']),
         (f'share/{PACKAGE}/config', glob('config/*.yaml')),
         (f'share/{PACKAGE}/launch', glob('launch/*.launch.py')),
+        (f'share/{PACKAGE}/rviz', glob('rviz/*.rviz')),
+        (f'share/{PACKAGE}/foxglove', glob('foxglove/*.json')),
     ],
     # Python dependencies live in requirements.txt (ranges) and constraints-cpu.txt (exact CPU pins);
     # on a robot, rclpy and the message packages come from the ROS 2 installation.
     install_requires=['setuptools'],
+    # `pip install .[scale]`: segments of a row as Ray tasks (fruitnerfpp orchard); without it they run in-process
+    extras_require={'scale': ['ray>=2.9']},
     zip_safe=False,
     maintainer='fruitnerfpp_ros maintainers',
     maintainer_email='maintainers@fruitnerfpp.invalid',

@@ -4,7 +4,9 @@
     ros2 launch fruitnerfpp_ros fruit_counter.launch.py params_file:=/path/to/my.yaml output_dir:=/data/run1 \
         namespace:=robot1 sim:=true
 
-With ``sim:=true`` an orchard_sim node publishes a generated synthetic drive on the default topics.
+With ``sim:=true`` an orchard_sim node publishes a generated synthetic drive on the default topics; with
+``rviz:=true`` RViz2 shows the outputs (rviz/fruit_counter.rviz, installed under share/fruitnerfpp_ros/rviz; RViz2
+itself comes from the ROS 2 desktop install). foxglove/fruit_counter.json is the same view as a Foxglove layout.
 """
 
 import os
@@ -18,7 +20,8 @@ from launch_ros.actions import Node
 
 
 def generate_launch_description():
-    default_params = os.path.join(get_package_share_directory('fruitnerfpp_ros'), 'config', 'fruit_counter.yaml')
+    share = get_package_share_directory('fruitnerfpp_ros')
+    default_params = os.path.join(share, 'config', 'fruit_counter.yaml')
     params_file = LaunchConfiguration('params_file')
     namespace = LaunchConfiguration('namespace')
     return LaunchDescription([
@@ -29,6 +32,8 @@ def generate_launch_description():
                               description="run directory ('' = ~/.ros/fruitnerfpp/run_<UTC time>)"),
         DeclareLaunchArgument('log_level', default_value='info', description='ROS log level'),
         DeclareLaunchArgument('sim', default_value='false', description='also start orchard_sim'),
+        DeclareLaunchArgument('rviz', default_value='false',
+                              description='also start RViz2 with rviz/fruit_counter.rviz (fixed frame map)'),
         Node(
             package='fruitnerfpp_ros',
             executable='fruit_counter',
@@ -46,5 +51,13 @@ def generate_launch_description():
             namespace=namespace,
             output='screen',
             condition=IfCondition(LaunchConfiguration('sim')),
+        ),
+        Node(
+            package='rviz2',
+            executable='rviz2',
+            name='rviz2',
+            arguments=['-d', os.path.join(share, 'rviz', 'fruit_counter.rviz')],
+            output='screen',
+            condition=IfCondition(LaunchConfiguration('rviz')),
         ),
     ])

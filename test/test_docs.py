@@ -13,7 +13,7 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = [ROOT / 'README.md', *sorted((ROOT / 'docs').rglob('*.md')), *sorted((ROOT / 'bench').rglob('*.md'))]
 #: First path components that name a folder of the repository (``config/fruit_counter.yaml``) ...
-REPO_DIRS = ('fruitnerfpp_ros', 'docs', 'config', 'bench', 'test', 'launch', 'resource', '.ci')
+REPO_DIRS = ('fruitnerfpp_ros', 'docs', 'config', 'bench', 'test', 'launch', 'resource', '.ci', 'rviz', 'foxglove')
 #: ... or of the package, as the docs write them (``core/clustering``, ``nodes/params.py``).
 PACKAGE_DIRS = ('core', 'nodes', 'cli')
 #: Code spans with a slash that are names, not paths.

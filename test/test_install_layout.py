@@ -31,6 +31,7 @@ def test_setup_py_install_gives_the_ament_layout(tmp_path: Path) -> None:
     params = yaml.safe_load((share / 'config/fruit_counter.yaml').read_text())
     assert 'ros__parameters' in params['/**']
     assert (share / 'launch/fruit_counter.launch.py').is_file()
+    assert (share / 'rviz/fruit_counter.rviz').is_file() and (share / 'foxglove/fruit_counter.json').is_file()
     for exe in ('fruit_counter', 'orchard_sim', 'bag_replay', 'fruitnerfpp'):
         path = prefix / 'lib' / PKG / exe
         assert path.is_file() and os.access(path, os.X_OK), f'{path} missing or not executable'
@@ -46,7 +47,8 @@ def test_launch_file_parses_and_names_the_node() -> None:
     functions = {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef)}
     assert 'generate_launch_description' in functions
     strings = {n.value for n in ast.walk(tree) if isinstance(n, ast.Constant) and isinstance(n.value, str)}
-    assert {'fruitnerfpp_ros', 'fruit_counter', 'fruit_counter.yaml', 'orchard_sim'} <= strings
+    assert {'fruitnerfpp_ros', 'fruit_counter', 'fruit_counter.yaml', 'orchard_sim', 'rviz', 'rviz2',
+            'fruit_counter.rviz'} <= strings
 
 
 def test_params_file_matches_declared_parameters() -> None:
