@@ -48,8 +48,9 @@ class RowSettings:
     segment_margin_m: float = _p(0.5, "A segment's keyframes see its stretch plus this much on both sides, metres.")
     tree_spacing_m: float = _p(0.0, 'Known tree spacing along the row, metres; 0 = the number of trees is found from '
                                'the fruit.')
-    row_standoff_m: float = _p(0.0, "Distance from the camera to the row's centre line, metres; 0 = measured from "
-                               'a drive on both sides (2 m while only one side is known).')
+    row_standoff_m: float = _p(0.0, "Distance from the camera to the row's centre line, metres; 0 = offline: "
+                               'midway between the passes of a drive on both sides; live (the row frame is fixed '
+                               'during the first pass) and one side only: 2 m.')
     orchard_config_file: str = _p('', 'Optional OrchardConfig YAML (config/orchard.yaml): segments, merge, trees, '
                                   'geo; the parameters above override it.')
     retrain_on_return: bool = _p(True, 'Live: train a segment again when the robot passes it on the way back (both '
@@ -111,7 +112,8 @@ def row_settings_from_parameters(values: Mapping[str, Any] | None) -> RowSetting
 
 def orchard_config(row: RowSettings, sections: Mapping[str, Any] | None = None) -> Any:
     """The core's OrchardConfig: ``orchard_config_file`` (or ``sections``, e.g. a ``--config`` file's ``orchard``
-    section), then the row parameters that are set.
+    section), then the row parameters that are set (``segment_margin_m`` and ``row_id`` at their defaults leave the
+    file's values).
 
     Raises:
         ConfigError: an unreadable file or an unknown key.
@@ -123,7 +125,12 @@ def orchard_config(row: RowSettings, sections: Mapping[str, Any] | None = None) 
         data = load_yaml_mapping(Path(row.orchard_config_file), kind='orchard_config_file')
         base = data.get('orchard', data)
     config = config_from_mapping(OrchardConfig, base)
-    overrides: dict[str, Any] = {'segments': {'margin_m': row.segment_margin_m}, 'geo': {'row_id': row.row_id}}
+    default = RowSettings()
+    overrides: dict[str, Any] = {'segments': {}, 'geo': {}}
+    if row.segment_margin_m != default.segment_margin_m or 'margin_m' not in (base.get('segments') or {}):
+        overrides['segments']['margin_m'] = row.segment_margin_m   # a file's value stays unless the parameter is set
+    if row.row_id != default.row_id or 'row_id' not in (base.get('geo') or {}):
+        overrides['geo']['row_id'] = row.row_id
     if row.segment_length_m > 0:
         overrides['segments']['length_m'] = row.segment_length_m
     if row.row_standoff_m > 0:
