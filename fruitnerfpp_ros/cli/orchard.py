@@ -130,16 +130,27 @@ def run(args: argparse.Namespace) -> int:
     orchard = orchard_config(row, orchard_section)
     source = prepare_source(args.source, args.out, settings, row)
     planting_map = args.trees or (Path(row.planting_map) if row.planting_map else None)
+    from tqdm import tqdm
+
     runner, ray = make_runner(args)
     if ray is None:
         use_cpu_threads(configs.train.cpu_threads, settings.device)  # this process owns its threads
+    bar = tqdm(desc='orchard', unit='segment', total=0)
+
+    def progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.n = done
+        bar.refresh()
+
     try:
         result = run_row(source.dataset_dir, args.out, runner, config=orchard, train_config=configs.train,
                          export_config=configs.export, cluster_config=configs.cluster,
                          device=settings.device if ray is None else 'auto', planting_map=planting_map,
                          fixes=source.fixes, antenna_in_camera_m=source.antenna, frame_id=settings.world_frame,
-                         extra={'keyframes': source.n_keyframes, 'preset': configs.preset, 'source': str(args.source)})
+                         extra={'keyframes': source.n_keyframes, 'preset': configs.preset, 'source': str(args.source)},
+                         log=tqdm.write, progress=progress)
     finally:
+        bar.close()
         if ray is not None:
             ray.shutdown()
     _print_result(result)

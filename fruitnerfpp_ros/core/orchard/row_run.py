@@ -135,7 +135,8 @@ def run_row(dataset_dir: str | Path, out_dir: str | Path, runner: SegmentRunner,
             config: OrchardConfig = OrchardConfig(), train_config: Any = None, export_config: Any = None,
             cluster_config: Any = None, device: str = 'auto', planting_map: str | Path | None = None,
             fixes: Sequence[GnssFix] | None = None, antenna_in_camera_m: np.ndarray | None = None,
-            frame_id: str = 'map', extra: dict[str, Any] | None = None, log: Log = print) -> RowResult:
+            frame_id: str = 'map', extra: dict[str, Any] | None = None, log: Log = print,
+            progress: Callable[[int, int], None] | None = None) -> RowResult:
     """Count a row: plan it, run one job per segment on ``runner``, join the counts, write the outputs.
 
     Args:
@@ -148,6 +149,7 @@ def run_row(dataset_dir: str | Path, out_dir: str | Path, runner: SegmentRunner,
         fixes / antenna_in_camera_m: GNSS fixes of the drive and the antenna's offset in the camera frame.
         frame_id: the world frame's name in the report.
         extra: more report keys (e.g. ``keyframes``, ``preset``).
+        log: receives a line per step; progress: ``(segments finished, segment jobs)`` once planned and after each.
 
     Raises:
         OrchardError: the row cannot be planned or georeferenced; DatasetError: an unreadable dataset.
@@ -173,10 +175,17 @@ def run_row(dataset_dir: str | Path, out_dir: str | Path, runner: SegmentRunner,
         f'({len(skipped)} with fewer than {config.segments.min_views} keyframes), '
         f'{max((len(s.frames) for s in plan.segments), default=0)} keyframes at most per segment')
     started = time.perf_counter()
+    finished = 0
+    if progress is not None:
+        progress(0, len(jobs))
 
     def done(outcome: SegmentOutcome) -> None:
+        nonlocal finished
+        finished += 1
         state = f'{len(outcome.fruits.centers)} fruits' if outcome.ok else f'FAILED ({outcome.error})'
         log(f'segment {outcome.index}: {state} after {outcome.attempts} attempt(s), {outcome.seconds:.0f} s')
+        if progress is not None:
+            progress(finished, len(jobs))
 
     outcomes = runner.run(jobs, done)
     outcomes += [SegmentOutcome(i, None, f'fewer than {config.segments.min_views} keyframes', 0) for i in skipped]
