@@ -66,7 +66,7 @@ class ClusterConfig:
     median number of cloud points within D / 2 of a point, measured on the cloud), which follows the image
     resolution, the views and the export voxel without a reference. None: the spacing-scaled value."""
 
-    fruit_share_keep: float | None = 0.25
+    fruit_share_keep: float | None = 0.4
     """... and ``min_fruit_points`` = this x the points a fruit shows. None: the spacing-scaled value."""
 
     reference_fruit_diameter_m: float | None = 0.075
