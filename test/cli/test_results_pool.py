@@ -2,41 +2,28 @@
 
 from __future__ import annotations
 
-from concurrent.futures import Executor, Future
 from contextlib import contextmanager
 from pathlib import Path
 from types import SimpleNamespace
-from typing import Any, Callable, Iterator
+from typing import Any, Iterator
 
 import pytest
 
 from fruitnerfpp_ros.cli.main import main
 from fruitnerfpp_ros.core.clustering.synthetic_cloud import make_fruit_cloud
 from fruitnerfpp_ros.core.export.npz_io import write_npz
-
-
-class _CountingExecutor(Executor):
-    """Runs submitted calls at once in this thread and counts them."""
-
-    def __init__(self) -> None:
-        self.submitted = 0
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
-        self.submitted += 1
-        future: Future = Future()
-        future.set_result(fn(*args, **kwargs))
-        return future
+from test.counting_executor import CountingExecutor
 
 
 @pytest.fixture
-def pools(monkeypatch: pytest.MonkeyPatch) -> list[tuple[int, _CountingExecutor]]:
+def pools(monkeypatch: pytest.MonkeyPatch) -> list[tuple[int, CountingExecutor]]:
     """partition_pool replaced by a recorder: (n_jobs, executor) per pool the command opened."""
     import fruitnerfpp_ros.core.clustering.workers as workers
-    opened: list[tuple[int, _CountingExecutor]] = []
+    opened: list[tuple[int, CountingExecutor]] = []
 
     @contextmanager
-    def recording_pool(n_jobs: int) -> Iterator[_CountingExecutor]:
-        opened.append((n_jobs, _CountingExecutor()))
+    def recording_pool(n_jobs: int) -> Iterator[CountingExecutor]:
+        opened.append((n_jobs, CountingExecutor()))
         yield opened[-1][1]
     monkeypatch.setattr(workers, 'partition_pool', recording_pool)
     return opened

@@ -35,7 +35,7 @@ if TYPE_CHECKING:  # torch stays unimported until a scene runs
     from fruitnerfpp_ros.core.synthetic import SynthConfig
     from fruitnerfpp_ros.core.training import TrainConfig
 
-__all__ = ['BagReplayRequest', 'BagReplayOutcome', 'BagRunner', 'SceneJob', 'run_scene', 'training_views',
+__all__ = ['BagReplayRequest', 'BagReplayOutcome', 'BagRunner', 'SceneJob', 'run_scene',
            'SCENE_LOG', 'SCENE_JSON', 'PICTURE']
 
 SCENE_LOG, SCENE_JSON, PICTURE, TRACK_COUNTS = 'scene.log', 'scene.json', 'count.png', 'track_counts.json'
@@ -134,22 +134,6 @@ def _output_to(path: Path) -> Iterator[None]:
             os.dup2(saved[1], 2)
             os.close(saved[0])
             os.close(saved[1])
-
-
-def training_views(dataset_dir: Path, eval_every: int, gt_path: Path) -> np.ndarray | None:
-    """The ground truth's view indices of the frames a run of ``dataset_dir`` trained on (the held-out split
-    left out), matched by stamp; None when the ground truth or the frames carry no stamps."""
-    from fruitnerfpp_ros.core.data.dataset import split_indices
-    from fruitnerfpp_ros.core.data.transforms_format import read_transforms
-    from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
-
-    frames = read_transforms(dataset_dir).frames
-    train, _ = split_indices(len(frames), eval_every)
-    stamps = [frames[i].stamp_ns for i in train]
-    gt = load_ground_truth(gt_path)
-    if gt.view_stamps_ns is None or any(s is None for s in stamps):
-        return None
-    return gt.views_at_stamps(stamps)
 
 
 def _eval_every(run_dir: Path, job: SceneJob) -> int:
@@ -251,6 +235,7 @@ def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
     except Exception as err:  # noqa: BLE001 - reported in the scene's row; the peer still runs
         record.fail('ours', err)
     record.values['n_views'] = len(read_transforms(counted_dir).frames)
+    from fruitnerfpp_ros.core.pipeline import training_views  # torch: in the scene's process only
     train_views = training_views(counted_dir, _eval_every(scene_dir / 'run', job), synth.gt_path)
     gt = load_ground_truth(synth.gt_path, train_views=train_views)
     record.values['gt_seen'] = int(gt.seen.sum())

@@ -13,19 +13,7 @@ from fruitnerfpp_ros.core.clustering.counter import count_fruits
 from fruitnerfpp_ros.core.clustering.synthetic_cloud import make_fruit_cloud
 from fruitnerfpp_ros.core.clustering.workers import partition_pool
 from fruitnerfpp_ros.errors import ConfigError
-
-
-class _CountingExecutor(Executor):
-    """Runs submitted calls at once in this thread and counts them."""
-
-    def __init__(self) -> None:
-        self.submitted = 0
-
-    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future:
-        self.submitted += 1
-        future: Future = Future()
-        future.set_result(fn(*args, **kwargs))
-        return future
+from test.counting_executor import CountingExecutor
 
 
 class _BrokenExecutor(Executor):
@@ -60,7 +48,7 @@ def test_any_executor_gives_the_in_process_labels() -> None:
 
 def test_the_executor_is_left_out_below_parallel_min_points_or_for_one_partition() -> None:
     synth = make_fruit_cloud(3000, 8, seed=12)
-    executor = _CountingExecutor()
+    executor = CountingExecutor()
     small = count_fruits(synth.cloud, ClusterConfig(partitions=2, parallel_min_points=10_000), executor=executor)
     single = count_fruits(synth.cloud, ClusterConfig(partitions=1, parallel_min_points=1000), executor=executor)
     assert executor.submitted == 0
