@@ -8,13 +8,10 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 
-from fruitnerfpp_ros.core.orchard.jobs import InProcessRunner, SegmentJob
-from fruitnerfpp_ros.core.orchard.merge import SegmentFruits
-from fruitnerfpp_ros.core.synthetic.bag_writer import BAG_START_NS, FRAME_PERIOD_NS
-from test.core.orchard.conftest import TINY_ROW
+from fruitnerfpp_ros.core.orchard.jobs import InProcessRunner
+from test.core.orchard.conftest import TINY_ROW, fruits_shown_by_stamps
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -34,16 +31,7 @@ def test_orchard_counts_a_bag_per_tree(row: Path, tmp_path: Path, monkeypatch: p
     import fruitnerfpp_ros.cli.orchard as orchard
     from fruitnerfpp_ros.cli.main import main
 
-    gt = json.loads((row / 'ds' / 'gt_fruits.json').read_text())['fruits']
-
-    def shown(job: SegmentJob) -> SegmentFruits:
-        frames = json.loads((Path(job.dataset_dir) / 'transforms.json').read_text())['frames']
-        views = {round((f['stamp_ns'] - BAG_START_NS) / FRAME_PERIOD_NS) for f in frames}
-        fruits = [f for f in gt if len(views & set(f['views_visible'])) >= 2]
-        return SegmentFruits(job.index, np.array([f['center'] for f in fruits]).reshape(-1, 3),
-                             np.array([f['diameter'] for f in fruits]), np.full(len(fruits), 50),
-                             np.array([f['id'] for f in fruits]))
-
+    shown = fruits_shown_by_stamps(row / 'ds' / 'gt_fruits.json')
     monkeypatch.setattr(orchard, 'make_runner', lambda args, log=print: (InProcessRunner(job=shown), None))
     out = tmp_path / 'run'
     code = main(['orchard', str(row / 'bag'), '--out', str(out), '--params', str(ROOT / 'config/fruit_counter.yaml'),

@@ -8,7 +8,6 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.node import Node
@@ -16,11 +15,8 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String, UInt32
 from std_srvs.srv import Trigger
 
-from fruitnerfpp_ros.core.orchard.jobs import SegmentJob
-from fruitnerfpp_ros.core.orchard.merge import SegmentFruits
-from fruitnerfpp_ros.core.synthetic.bag_writer import BAG_START_NS, FRAME_PERIOD_NS
 from fruitnerfpp_ros.nodes.fruit_counter import LATCHED_QOS, FruitCounterNode
-from test.core.orchard.conftest import TINY_ROW
+from test.core.orchard.conftest import TINY_ROW, fruits_shown_by_stamps
 from test.nodes.test_live_nodes import Graph, wait_for
 
 pytestmark = pytest.mark.ros
@@ -43,15 +39,7 @@ def test_row_mode_publishes_tree_counts_while_the_row_is_driven(row_bag: Path, t
 
     gt = json.loads((row_bag / 'ds' / 'gt_fruits.json').read_text())['fruits']
 
-    def shown(job: SegmentJob, stop_event: Any = None) -> SegmentFruits:
-        frames = json.loads((Path(job.dataset_dir) / 'transforms.json').read_text())['frames']
-        views = {round((f['stamp_ns'] - BAG_START_NS) / FRAME_PERIOD_NS) for f in frames}
-        fruits = [f for f in gt if len(views & set(f['views_visible'])) >= 2]
-        return SegmentFruits(job.index, np.array([f['center'] for f in fruits]).reshape(-1, 3),
-                             np.array([f['diameter'] for f in fruits]), np.full(len(fruits), 50),
-                             np.array([f['id'] for f in fruits]))
-
-    monkeypatch.setattr(row_counter, 'train_segment', shown)
+    monkeypatch.setattr(row_counter, 'train_segment', fruits_shown_by_stamps(row_bag / 'ds' / 'gt_fruits.json'))
     graph = Graph()
     try:
         params = dict(output_dir=str(tmp_path / 'run'), input_reliability='reliable', min_translation_m=0.05,
