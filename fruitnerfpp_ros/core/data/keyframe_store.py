@@ -338,8 +338,9 @@ class KeyframeStore:
             write_transforms(self.directory, self._transforms(self._frames))
         except OSError as err:
             self.write_errors += 1
-            self.last_write_error = (f'{self.directory}: cannot rewrite {TRANSFORMS_NAME} ({self._write_failure(err)}); '
-                                     f'the keyframes are safe in the journal and it is retried')
+            self.last_write_error = (f'{self.directory}: cannot rewrite {TRANSFORMS_NAME} '
+                                     f'({self._write_failure(err)}); the keyframes are safe in the journal and it '
+                                     'is retried')
             return
         self._index_dirty = False
         self._index_written = now
