@@ -9,7 +9,7 @@ from typing import Any, Iterator
 
 import yaml
 
-from fruitnerfpp_ros.nodes.conversions import CLOUD_DTYPE
+from fruitnerfpp_ros.nodes.result_msgs import CLOUD_DTYPE
 from fruitnerfpp_ros.nodes.params import CounterSettings
 from fruitnerfpp_ros.nodes.results import DIAGNOSTICS_TOPIC, OUTPUT_TOPICS
 from fruitnerfpp_ros.nodes.row_results import ROW_OUTPUT_TOPICS

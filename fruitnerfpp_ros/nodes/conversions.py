@@ -11,37 +11,25 @@ the top-left corner (``cx_transforms = cx_ros + 0.5``).
 
 from __future__ import annotations
 
-import json
-from typing import Any, NamedTuple, Sequence
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
 
-from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics
 from fruitnerfpp_ros.core.data.undistortion import DISTORTION_MODELS, LensUndistorter
-from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer
 from fruitnerfpp_ros.core.geometry import (principal_point_transforms_from_ros, quaternion_from_transform,
                                            transform_from_quaternion)
 from fruitnerfpp_ros.errors import ConversionError, FruitNerfError
 
 __all__ = [
-    'REPORT_SCHEMA', 'REPORT_VERSION', 'CLOUD_DTYPE', 'QUATERNION_NORM_TOLERANCE', 'CameraModel',
-    'stamp_ns_from_header', 'time_msg_from_ns',
-    'image_from_msg', 'mask_from_msg', 'depth_from_msg', 'camera_model_from_camera_info',
-    'intrinsics_from_camera_info', 'undistort_image', 'undistort_mask', 'undistort_depth', 'undistorter_for',
-    'valid_pixels', 'transform_from_pose_msg',
-    'transform_from_transform_msg', 'add_tf_message',
-    'pose_msg_from_transform', 'cloud_msg_from_points', 'points_from_cloud_msg', 'pose_array_from_centers',
-    'markers_from_fruits', 'report_from_count', 'report_json', 'image_msg_from_array',
-    'camera_info_msg_from_intrinsics',
+    'QUATERNION_NORM_TOLERANCE', 'CameraModel', 'stamp_ns_from_header', 'time_msg_from_ns', 'image_from_msg',
+    'mask_from_msg', 'depth_from_msg', 'camera_model_from_camera_info', 'intrinsics_from_camera_info',
+    'undistort_image', 'undistort_mask', 'undistort_depth', 'undistorter_for', 'valid_pixels',
+    'transform_from_pose_msg', 'transform_from_transform_msg', 'add_tf_message', 'pose_msg_from_transform',
+    'image_msg_from_array', 'camera_info_msg_from_intrinsics', 'header_msg', 'bytes_of'
 ]
-
-#: Identifies the JSON published on ``~/fruit_report`` and written to ``fruit_report.json``.
-REPORT_SCHEMA = 'fruitnerfpp_ros/fruit_report'
-#: Bumped whenever a key of the report changes meaning or disappears (adding keys keeps the version).
-REPORT_VERSION = 1
 
 _IMAGE_ENCODINGS = {  # encoding -> (channels, dtype)
     'rgb8': (3, np.uint8), 'bgr8': (3, np.uint8), 'rgba8': (4, np.uint8), 'bgra8': (4, np.uint8),
@@ -97,14 +85,16 @@ def time_msg_from_ns(stamp_ns: int) -> Any:
     return Time(sec=int(stamp_ns // 1_000_000_000), nanosec=int(stamp_ns % 1_000_000_000))
 
 
-def _header(frame_id: str, stamp_ns: int) -> Any:
+def header_msg(frame_id: str, stamp_ns: int) -> Any:
+    """``std_msgs/Header`` of ``frame_id`` at ``stamp_ns``."""
     from std_msgs.msg import Header
     return Header(stamp=time_msg_from_ns(stamp_ns), frame_id=frame_id)
 
 
 # ----------------------------------------------------------------------------------------------- images
 
-def _bytes_of(data: Any) -> np.ndarray:
+def bytes_of(data: Any) -> np.ndarray:
+    """A message's ``data`` field (bytes, array.array or numpy array, as rclpy or rosbags give it) as uint8."""
     if isinstance(data, np.ndarray):
         return data.reshape(-1).view(np.uint8)
     return np.frombuffer(data, dtype=np.uint8)
@@ -118,7 +108,7 @@ def _pixels(msg: Any, channels: int, dtype: type, topic: str) -> np.ndarray:
         raise ConversionError(f'{topic}: empty image ({width}x{height})')
     if step < row_bytes:
         raise ConversionError(f'{topic}: step {step} is smaller than width {width} x {channels} x {itemsize} bytes')
-    raw = _bytes_of(msg.data)
+    raw = bytes_of(msg.data)
     if raw.size < step * height:
         raise ConversionError(f'{topic}: image data has {raw.size} bytes, expected step {step} x height {height}')
     rows = raw[:step * height].reshape(height, step)[:, :row_bytes]
@@ -134,7 +124,7 @@ def image_from_msg(msg: Any, *, topic: str = 'image') -> np.ndarray:
         ConversionError: unknown encoding, inconsistent size or undecodable compressed data.
     """
     if hasattr(msg, 'format') and not hasattr(msg, 'encoding'):  # sensor_msgs/CompressedImage
-        decoded = cv2.imdecode(_bytes_of(msg.data), cv2.IMREAD_COLOR)
+        decoded = cv2.imdecode(bytes_of(msg.data), cv2.IMREAD_COLOR)
         if decoded is None:
             raise ConversionError(f'{topic}: cannot decode CompressedImage (format {msg.format!r})')
         return cv2.cvtColor(decoded, cv2.COLOR_BGR2RGB)
@@ -199,7 +189,7 @@ def image_msg_from_array(pixels: np.ndarray, encoding: str, frame_id: str, stamp
     from sensor_msgs.msg import Image
     pixels = np.ascontiguousarray(pixels)
     height, width = pixels.shape[:2]
-    return Image(header=_header(frame_id, stamp_ns), height=height, width=width, encoding=encoding,
+    return Image(header=header_msg(frame_id, stamp_ns), height=height, width=width, encoding=encoding,
                  is_bigendian=0, step=int(pixels.strides[0]), data=pixels.tobytes())
 
 
@@ -240,7 +230,7 @@ def camera_info_msg_from_intrinsics(intrinsics: CameraIntrinsics, frame_id: str,
     from sensor_msgs.msg import CameraInfo
     cx, cy = intrinsics.cx - 0.5, intrinsics.cy - 0.5
     fx, fy = intrinsics.fl_x, intrinsics.fl_y
-    return CameraInfo(header=_header(frame_id, stamp_ns), width=int(intrinsics.w), height=int(intrinsics.h),
+    return CameraInfo(header=header_msg(frame_id, stamp_ns), width=int(intrinsics.w), height=int(intrinsics.h),
                       distortion_model='plumb_bob', d=[0.0] * 5, k=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0],
                       r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
                       p=[fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0])
@@ -351,120 +341,3 @@ def pose_msg_from_transform(T: np.ndarray) -> Any:
     t, q = quaternion_from_transform(T)
     return Pose(position=Point(x=float(t[0]), y=float(t[1]), z=float(t[2])),
                 orientation=Quaternion(x=float(q[0]), y=float(q[1]), z=float(q[2]), w=float(q[3])))
-
-
-# ----------------------------------------------------------------------------------------------- results
-
-#: Point layout of ``~/fruit_cloud``: x, y, z float32; rgb packed 0x00RRGGBB (uint32 read as FLOAT32, as RViz and
-#: PCL expect); instance_id uint32 (cluster id, 0 = noise); semantic float32 fruit probability.
-CLOUD_DTYPE = np.dtype([('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('rgb', '<u4'), ('instance_id', '<u4'),
-                        ('semantic', '<f4')])
-
-
-def cloud_msg_from_points(cloud: FruitPointCloud, labels: np.ndarray | None, frame_id: str, stamp_ns: int) -> Any:
-    """``sensor_msgs/PointCloud2`` of a fruit cloud with per-point cluster ids (fields: see ``CLOUD_DTYPE``)."""
-    from sensor_msgs.msg import PointCloud2, PointField
-    n = len(cloud)
-    points = np.zeros(n, dtype=CLOUD_DTYPE)
-    xyz = np.asarray(cloud.xyz, dtype=np.float32).reshape(n, 3)
-    points['x'], points['y'], points['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    rgb = np.asarray(cloud.rgb, dtype=np.uint32).reshape(n, 3)
-    points['rgb'] = (rgb[:, 0] << 16) | (rgb[:, 1] << 8) | rgb[:, 2]
-    points['instance_id'] = 0 if labels is None else np.asarray(labels).astype(np.uint32)
-    points['semantic'] = np.asarray(cloud.semantic, dtype=np.float32)
-    types = {'x': PointField.FLOAT32, 'y': PointField.FLOAT32, 'z': PointField.FLOAT32, 'rgb': PointField.FLOAT32,
-             'instance_id': PointField.UINT32, 'semantic': PointField.FLOAT32}
-    fields = [PointField(name=name, offset=CLOUD_DTYPE.fields[name][1], datatype=types[name], count=1)
-              for name in CLOUD_DTYPE.names]
-    return PointCloud2(header=_header(frame_id, stamp_ns), height=1, width=n, fields=fields, is_bigendian=False,
-                       point_step=CLOUD_DTYPE.itemsize, row_step=CLOUD_DTYPE.itemsize * n, is_dense=True,
-                       data=points.tobytes())
-
-
-_POINT_FIELD_DTYPES = {1: 'i1', 2: 'u1', 3: 'i2', 4: 'u2', 5: 'i4', 6: 'u4', 7: 'f4', 8: 'f8'}
-
-
-def points_from_cloud_msg(msg: Any) -> np.ndarray:
-    """Structured numpy array (one record per point, one field per PointField) of a ``PointCloud2``.
-
-    Raises:
-        ConversionError: a field datatype outside the PointField constants, or too little data.
-    """
-    endian = '>' if msg.is_bigendian else '<'
-    names, formats, offsets = [], [], []
-    for f in msg.fields:
-        if int(f.datatype) not in _POINT_FIELD_DTYPES:
-            raise ConversionError(f'PointCloud2 field {f.name!r}: unknown datatype {f.datatype}')
-        names.append(str(f.name))
-        formats.append(endian + _POINT_FIELD_DTYPES[int(f.datatype)])
-        offsets.append(int(f.offset))
-    dtype = np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': int(msg.point_step)})
-    n = int(msg.width) * int(msg.height)
-    raw = _bytes_of(msg.data)
-    if raw.size < n * int(msg.point_step):
-        raise ConversionError(f'PointCloud2: {raw.size} bytes for {n} points of {msg.point_step} bytes')
-    return np.frombuffer(raw[:n * int(msg.point_step)].tobytes(), dtype=dtype)
-
-
-def pose_array_from_centers(centers: np.ndarray, frame_id: str, stamp_ns: int) -> Any:
-    """``geometry_msgs/PoseArray`` with one identity-oriented pose per fruit centre ([N, 3], metres)."""
-    from geometry_msgs.msg import Point, Pose, PoseArray, Quaternion
-    poses = [Pose(position=Point(x=float(c[0]), y=float(c[1]), z=float(c[2])), orientation=Quaternion(w=1.0))
-             for c in np.asarray(centers, dtype=float).reshape(-1, 3)]
-    return PoseArray(header=_header(frame_id, stamp_ns), poses=poses)
-
-
-def markers_from_fruits(fruits: Sequence[Fruit], frame_id: str, stamp_ns: int) -> Any:
-    """``visualization_msgs/MarkerArray``: DELETEALL, then per fruit a sphere (ns ``fruits``, id = fruit id)
-    sized by its diameter and a text label (ns ``fruit_labels``) above it."""
-    from std_msgs.msg import ColorRGBA
-    from visualization_msgs.msg import Marker, MarkerArray
-    header = _header(frame_id, stamp_ns)
-    markers = [Marker(header=header, action=Marker.DELETEALL)]
-    for fruit in fruits:
-        pose = pose_msg_from_transform(np.eye(4))
-        pose.position.x, pose.position.y, pose.position.z = (float(v) for v in fruit.center)
-        diameter = float(max(fruit.diameter_m, 1e-3))
-        sphere = Marker(header=header, ns='fruits', id=int(fruit.id), type=Marker.SPHERE, action=Marker.ADD,
-                        pose=pose, color=ColorRGBA(r=1.0, g=0.3, b=0.1, a=0.8))
-        sphere.scale.x = sphere.scale.y = sphere.scale.z = diameter
-        label_pose = pose_msg_from_transform(np.eye(4))
-        label_pose.position.x, label_pose.position.y = pose.position.x, pose.position.y
-        label_pose.position.z = pose.position.z + diameter
-        label = Marker(header=header, ns='fruit_labels', id=int(fruit.id), type=Marker.TEXT_VIEW_FACING,
-                       action=Marker.ADD, pose=label_pose, text=str(int(fruit.id)),
-                       color=ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0))
-        label.scale.z = max(diameter * 0.6, 0.02)
-        markers += [sphere, label]
-    return MarkerArray(markers=markers)
-
-
-def report_from_count(count: CountResult, frame_id: str, stamp_ns: int, run_id: str,
-                      extra: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The fruit report (schema ``fruitnerfpp_ros/fruit_report``, version 1).
-
-    Keys: ``schema``, ``version``, ``run_id``, ``stamp`` {``sec``, ``nanosec``}, ``stamp_ns``, ``frame_id``
-    (world frame of every coordinate), ``total`` (number of fruits), ``fruits`` (list of {``id`` (as in the
-    cloud's instance_id and the markers), ``center`` [x, y, z] m, ``diameter`` m, ``extent`` [3] m,
-    ``n_points``}), plus ``extra`` (e.g. ``keyframes``, ``stats``).
-    """
-    report = {'schema': REPORT_SCHEMA, 'version': REPORT_VERSION, 'run_id': run_id,
-              'stamp': {'sec': int(stamp_ns // 1_000_000_000), 'nanosec': int(stamp_ns % 1_000_000_000)},
-              'stamp_ns': int(stamp_ns), 'frame_id': frame_id, 'total': int(count.count),
-              'fruits': [f.to_json() for f in count.fruits]}
-    report.update(extra or {})
-    return report
-
-
-def report_json(count: CountResult, frame_id: str, stamp_ns: int, run_id: str,
-                extra: dict[str, Any] | None = None) -> str:
-    """:func:`report_from_count` as a JSON string (what ``~/fruit_report`` carries)."""
-    return json.dumps(report_from_count(count, frame_id, stamp_ns, run_id, extra), default=_json_default)
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    return str(value)

@@ -15,8 +15,9 @@ import numpy as np
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
-from fruitnerfpp_ros.nodes.conversions import (cloud_msg_from_points, markers_from_fruits, pose_array_from_centers,
-                                               report_json, time_msg_from_ns)
+from fruitnerfpp_ros.nodes.conversions import time_msg_from_ns
+from fruitnerfpp_ros.nodes.result_msgs import (cloud_msg_from_points, markers_from_fruits, pose_array_from_centers,
+                                               report_json)
 from fruitnerfpp_ros.nodes.status import DiagnosticLevel
 
 __all__ = ['OutputTopic', 'OUTPUT_TOPICS', 'DIAGNOSTICS_TOPIC', 'RESULTS_NODE_NAME', 'result_messages',

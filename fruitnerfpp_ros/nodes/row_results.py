@@ -21,8 +21,8 @@ from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.orchard.row_run import RowResult
 from fruitnerfpp_ros.core.orchard.trees import TreeCount
 from fruitnerfpp_ros.errors import FruitNerfError
-from fruitnerfpp_ros.nodes.conversions import (cloud_msg_from_points, markers_from_fruits, pose_array_from_centers,
-                                               pose_msg_from_transform, time_msg_from_ns)
+from fruitnerfpp_ros.nodes.conversions import pose_msg_from_transform, time_msg_from_ns
+from fruitnerfpp_ros.nodes.result_msgs import cloud_msg_from_points, markers_from_fruits, pose_array_from_centers
 from fruitnerfpp_ros.nodes.results import OutputTopic
 
 __all__ = ['ROW_OUTPUT_TOPICS', 'row_messages', 'tree_markers', 'row_cloud']

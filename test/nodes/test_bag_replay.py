@@ -21,7 +21,7 @@ from std_msgs.msg import String, UInt32
 from fruitnerfpp_ros.cli.main import main as cli_main
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.nodes.bag_replay import collect_keyframes, replay_bag
-from fruitnerfpp_ros.nodes.conversions import points_from_cloud_msg
+from fruitnerfpp_ros.nodes.result_msgs import points_from_cloud_msg
 from fruitnerfpp_ros.nodes.log import LogLevel
 from fruitnerfpp_ros.nodes.params import settings_from_parameters
 from fruitnerfpp_ros.nodes.results import OUTPUT_TOPICS

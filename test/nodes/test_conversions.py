@@ -17,6 +17,7 @@ from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.streams.tf_buffer import TfBuffer
 from fruitnerfpp_ros.errors import ConversionError
 from fruitnerfpp_ros.nodes import conversions as cv
+from fruitnerfpp_ros.nodes import result_msgs as rm
 
 
 def _image_msg(pixels: np.ndarray, encoding: str, pad: int = 0) -> Image:
@@ -152,9 +153,9 @@ def _count() -> tuple[FruitPointCloud, CountResult]:
 
 def test_cloud_round_trip_keeps_instance_ids_and_colours() -> None:
     cloud, count = _count()
-    msg = cv.cloud_msg_from_points(cloud, count.labels, 'map', 1_500_000_000)
+    msg = rm.cloud_msg_from_points(cloud, count.labels, 'map', 1_500_000_000)
     assert [f.name for f in msg.fields] == ['x', 'y', 'z', 'rgb', 'instance_id', 'semantic']
-    points = cv.points_from_cloud_msg(msg)
+    points = rm.points_from_cloud_msg(msg)
     assert np.array_equal(points['instance_id'], [1, 1, 2, 0])
     assert np.allclose(np.stack([points['x'], points['y'], points['z']], 1), cloud.xyz)
     rgb = points['rgb'].view(np.uint32)
@@ -165,16 +166,16 @@ def test_cloud_round_trip_keeps_instance_ids_and_colours() -> None:
 
 def test_centers_markers_and_report() -> None:
     cloud, count = _count()
-    poses = cv.pose_array_from_centers(count.centers(), 'map', 0)
+    poses = rm.pose_array_from_centers(count.centers(), 'map', 0)
     assert len(poses.poses) == 2 and poses.poses[1].position.z == 1.0
-    markers = cv.markers_from_fruits(count.fruits, 'map', 0).markers
+    markers = rm.markers_from_fruits(count.fruits, 'map', 0).markers
     assert markers[0].action == Marker.DELETEALL
     spheres = [m for m in markers if m.ns == 'fruits']
     labels = [m for m in markers if m.ns == 'fruit_labels']
     assert [m.id for m in spheres] == [1, 2] and [m.text for m in labels] == ['1', '2']
     assert spheres[1].scale.x == pytest.approx(0.08)
-    report = json.loads(cv.report_json(count, 'map', 2_000_000_001, 'run-x', {'keyframes': 9}))
-    assert report['schema'] == cv.REPORT_SCHEMA and report['version'] == 1 and report['total'] == 2
+    report = json.loads(rm.report_json(count, 'map', 2_000_000_001, 'run-x', {'keyframes': 9}))
+    assert report['schema'] == rm.REPORT_SCHEMA and report['version'] == 1 and report['total'] == 2
     assert report['stamp'] == {'sec': 2, 'nanosec': 1} and report['frame_id'] == 'map'
     assert report['fruits'][1]['center'] == [1.0, 1.0, 1.0] and report['fruits'][0]['diameter'] == 0.07
     assert report['keyframes'] == 9 and report['run_id'] == 'run-x'

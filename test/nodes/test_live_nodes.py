@@ -21,7 +21,7 @@ from std_msgs.msg import String, UInt32
 from std_srvs.srv import Trigger
 
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
-from fruitnerfpp_ros.nodes.conversions import points_from_cloud_msg
+from fruitnerfpp_ros.nodes.result_msgs import points_from_cloud_msg
 from fruitnerfpp_ros.nodes.fruit_counter import LATCHED_QOS, FruitCounterNode
 from fruitnerfpp_ros.nodes.status import NodeState
 from test.nodes import bag_factory as bf
