@@ -22,8 +22,8 @@ from typing import Any, Callable
 import numpy as np
 
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeStore
-from fruitnerfpp_ros.core.orchard.georef import WorldGeoref, estimate_georef, georef_from_datum, parse_datum
-from fruitnerfpp_ros.core.orchard.gnss import GnssFix, antenna_positions
+from fruitnerfpp_ros.core.orchard.georef import WorldGeoref, fit_georef_to_drive, georef_from_datum, parse_datum
+from fruitnerfpp_ros.core.orchard.gnss import GnssFix
 from fruitnerfpp_ros.core.orchard.jobs import SegmentJob, SegmentOutcome, train_segment
 from fruitnerfpp_ros.core.orchard.live import LiveRow, SegmentRequest
 from fruitnerfpp_ros.core.orchard.segments import write_segment_dataset
@@ -182,14 +182,9 @@ class RowCounter:
             fixes, frames = list(self.fixes), list(self.live.frames)
         if len(fixes) < 3 or len(frames) < 2:
             return None
-        geo = self.orchard.geo
-        antenna = None if geo.antenna_in_camera_m is None else np.asarray(geo.antenna_in_camera_m)
-        poses = np.stack([f.T_world_camera for f in frames])
-        world, valid = antenna_positions([f.stamp_ns or 0 for f in frames], poses, [f.stamp_ns for f in fixes],
-                                         antenna, max_gap_s=geo.max_gap_s)
         try:
-            return estimate_georef(world[valid], [f for f, v in zip(fixes, valid) if v],
-                                   outlier_sigma=geo.outlier_sigma)
+            return fit_georef_to_drive([f.stamp_ns or 0 for f in frames],
+                                       np.stack([f.T_world_camera for f in frames]), fixes, self.orchard.geo)
         except FruitNerfError:
             return None
 

@@ -17,10 +17,11 @@ from typing import Any, Sequence
 import numpy as np
 
 from fruitnerfpp_ros.core.orchard.geodesy import Datum, enu_from_geodetic, geodetic_from_enu
-from fruitnerfpp_ros.core.orchard.gnss import STATUS_NO_FIX, GnssFix
+from fruitnerfpp_ros.core.orchard.config import GeoConfig
+from fruitnerfpp_ros.core.orchard.gnss import STATUS_NO_FIX, GnssFix, antenna_positions
 from fruitnerfpp_ros.errors import OrchardError
 
-__all__ = ['WorldGeoref', 'georef_from_datum', 'estimate_georef', 'parse_datum']
+__all__ = ['WorldGeoref', 'georef_from_datum', 'estimate_georef', 'fit_georef_to_drive', 'parse_datum']
 
 
 @dataclass(frozen=True)
@@ -166,3 +167,17 @@ def estimate_georef(world: np.ndarray, fixes: Sequence[GnssFix], *, outlier_sigm
     residual = float(np.sqrt(np.mean(horizontal[keep] ** 2)))
     vertical = float(np.sqrt(np.mean((fitted[keep, 2] - q[keep, 2]) ** 2)))
     return WorldGeoref(datum, yaw, t, 'gnss', int(keep.sum()), int((~keep).sum()), residual, vertical, span)
+
+
+def fit_georef_to_drive(stamps_ns: Sequence[int], T_world_camera: np.ndarray, fixes: Sequence[GnssFix],
+                        geo: GeoConfig, antenna: np.ndarray | None = None) -> WorldGeoref:
+    """:func:`estimate_georef` of the fixes against the antenna positions of a drive's camera poses [N, 4, 4] at
+    ``stamps_ns``; the antenna offset is ``geo.antenna_in_camera_m``, else ``antenna``, else the camera centre.
+
+    Raises:
+        OrchardError: too few fixes matched to the drive, or a fit that fails (see :func:`estimate_georef`).
+    """
+    offset = np.asarray(geo.antenna_in_camera_m) if geo.antenna_in_camera_m is not None else antenna
+    world, valid = antenna_positions(stamps_ns, T_world_camera, [f.stamp_ns for f in fixes], offset,
+                                     max_gap_s=geo.max_gap_s)
+    return estimate_georef(world[valid], [f for f, v in zip(fixes, valid) if v], outlier_sigma=geo.outlier_sigma)

@@ -21,8 +21,8 @@ import numpy as np
 from fruitnerfpp_ros.core.data.transforms_format import TransformsFile, read_transforms
 from fruitnerfpp_ros.core.orchard.config import OrchardConfig
 from fruitnerfpp_ros.core.orchard.geodesy import Datum
-from fruitnerfpp_ros.core.orchard.georef import WorldGeoref, estimate_georef, georef_from_datum, parse_datum
-from fruitnerfpp_ros.core.orchard.gnss import GnssFix, antenna_positions
+from fruitnerfpp_ros.core.orchard.georef import WorldGeoref, fit_georef_to_drive, georef_from_datum, parse_datum
+from fruitnerfpp_ros.core.orchard.gnss import GnssFix
 from fruitnerfpp_ros.core.orchard.jobs import SegmentJob, SegmentOutcome, SegmentRunner
 from fruitnerfpp_ros.core.orchard.merge import RowFruits, merge_segments
 from fruitnerfpp_ros.core.orchard.report import (fruits_geojson, row_report, trees_csv, trees_geojson,
@@ -88,12 +88,8 @@ def resolve_georef(config: OrchardConfig, transforms: TransformsFile, fixes: Seq
         datum, yaw = parse_datum(list(geo.datum))
         return georef_from_datum(datum, yaw)
     if fixes:
-        stamps = [f.stamp_ns or 0 for f in transforms.frames]
-        offset = np.asarray(geo.antenna_in_camera_m) if geo.antenna_in_camera_m is not None else antenna
-        world, valid = antenna_positions(stamps, np.stack([f.T_world_camera for f in transforms.frames]),
-                                         [f.stamp_ns for f in fixes], offset, max_gap_s=geo.max_gap_s)
-        used = [f for f, v in zip(fixes, valid) if v]
-        georef = estimate_georef(world[valid], used, outlier_sigma=geo.outlier_sigma)
+        georef = fit_georef_to_drive([f.stamp_ns or 0 for f in transforms.frames],
+                                     np.stack([f.T_world_camera for f in transforms.frames]), fixes, geo, antenna)
         log(f'georeferenced from {georef.n_fixes} GNSS fixes ({georef.n_rejected} rejected): residual '
             f'{georef.residual_rms_m:.3f} m horizontal, {georef.residual_vertical_rms_m:.3f} m vertical')
         return georef
