@@ -109,6 +109,10 @@ def summary_lines(suite: SuiteResult) -> list[str]:
                      + (f' ({where})' if where else '') + f' over {scored} of {len(suite.scenes)} scenes')
     failed = suite.failed
     lines.append(f'- failed scenes: {len(failed)}' + (': ' + ', '.join(s.name for s in failed) if failed else ''))
+    if suite.pending:
+        lines.append(f'- **unfinished run**: {len(suite.pending)} scene(s) still to come ({", ".join(suite.pending)}); '
+                     f'{_num(suite.total_s, 0)} s so far, {suite.jobs} scene(s) at once')
+        return lines
     lines.append(f'- total time: {_num(suite.total_s, 0)} s ({_num(suite.total_s / 60, 1)} min), '
                  f'{suite.jobs} scene(s) at once')
     return lines

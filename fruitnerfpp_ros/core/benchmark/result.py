@@ -157,6 +157,7 @@ class SuiteResult:
         total_s: wall seconds of the whole suite.
         command: the command line that ran it.
         git_commit: ``git rev-parse --short HEAD`` of the code (``+dirty`` when tracked files differ), or ``''``.
+        pending: scenes not finished yet (a report written while the suite runs); empty once it has ended.
     """
 
     suite: str
@@ -170,6 +171,7 @@ class SuiteResult:
     total_s: float = field(default_factory=_nan)
     command: str = ''
     git_commit: str = ''
+    pending: tuple[str, ...] = ()
 
     def f1s(self, who: str) -> list[float]:
         """F1 of ``who`` (``ours`` or ``peer``) on every scene it scored."""
@@ -208,4 +210,5 @@ class SuiteResult:
         values = {f.name: data[f.name] for f in fields(cls) if f.name in data and f.name != 'scenes'}
         if values.get('total_s') is None:
             values['total_s'] = float('nan')
+        values['pending'] = tuple(values.get('pending', ()))
         return cls(scenes=tuple(SceneResult.from_json(s) for s in data.get('scenes', [])), **values)

@@ -119,16 +119,24 @@ def run_suite(suite: str, scenes: Sequence[SuiteScene], out_dir: str | Path, opt
                      options.export_config, options.cluster_config, options.config_file, bag_runner)
             for scene in scenes]
     done: dict[str, SceneResult] = {}
+    commit = git_commit()
+
+    def report() -> SuiteResult:
+        """The suite's result so far, written to the reports (an interrupted run keeps its finished scenes)."""
+        result = SuiteResult(suite, tuple(done[s.name] for s in scenes if s.name in done), options.preset,
+                             options.masks, options.device, options.jobs, options.config_file, started_utc,
+                             time.perf_counter() - started, command, commit,
+                             pending=tuple(s.name for s in scenes if s.name not in done))
+        atomic_write_text(out_dir / ACCURACY_JSON, json.dumps(result.to_json(), indent=1))
+        atomic_write_text(out_dir / ACCURACY_MD, render_markdown(result))
+        return result
+
     with ThreadPoolExecutor(max_workers=min(options.jobs, len(jobs)), thread_name_prefix='scene') as threads:
         futures = {threads.submit(_in_own_process, scene_fn, job): job.scene.name for job in jobs}
         for future in as_completed(futures):
-            result = future.result()
-            done[futures[future]] = result
+            done[futures[future]] = future.result()
+            if len(done) < len(jobs):
+                report()
             if on_scene_done is not None:
-                on_scene_done(result)
-    result = SuiteResult(suite, tuple(done[s.name] for s in scenes), options.preset, options.masks, options.device,
-                         options.jobs, options.config_file, started_utc, time.perf_counter() - started, command,
-                         git_commit())
-    atomic_write_text(out_dir / ACCURACY_JSON, json.dumps(result.to_json(), indent=1))
-    atomic_write_text(out_dir / ACCURACY_MD, render_markdown(result))
-    return result
+                on_scene_done(done[futures[future]])
+    return report()

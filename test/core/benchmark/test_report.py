@@ -84,3 +84,13 @@ def test_git_commit_of_this_repository_and_outside_one(tmp_path: Path) -> None:
     commit = git_commit()
     assert commit == '' or len(commit.split('+')[0]) >= 7
     assert git_commit(tmp_path) == ''
+
+
+def test_an_unfinished_run_says_so_and_round_trips(suite: SuiteResult) -> None:
+    from dataclasses import replace
+    running = replace(suite, pending=('c', 'd'))
+    text = render_markdown(running)
+    assert '- **unfinished run**: 2 scene(s) still to come (c, d); 600 s so far, 2 scene(s) at once' in text
+    assert '- total time' not in text and '- total time' in render_markdown(suite)
+    back = SuiteResult.from_json(json.loads(json.dumps(running.to_json())))
+    assert back.pending == ('c', 'd') and render_markdown(back) == text

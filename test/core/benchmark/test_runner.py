@@ -75,6 +75,25 @@ def test_a_dead_scene_process_fails_only_its_scene(tmp_path: Path) -> None:
     assert 'scene process: BrokenProcessPool' in dies.error and lives.ok
 
 
+def _reads_the_report(job: SceneJob) -> SceneResult:
+    """Scene function of the partial-report test: the second scene reads the report the suite holds so far."""
+    path = job.out_dir / ACCURACY_JSON
+    seen = path.read_text() if path.exists() else ''
+    return SceneResult(job.scene.name, seen, times_s={'total': 0.0})
+
+
+def test_the_report_holds_every_finished_scene_while_the_suite_runs(tmp_path: Path) -> None:
+    scenes = [SuiteScene('first', {}, 'x'), SuiteScene('second', {}, 'y'), SuiteScene('third', {}, 'z')]
+    suite = run_suite('test', scenes, tmp_path, _options(jobs=1), scene_fn=_reads_the_report)
+    assert suite.scenes[0].covers == ''                       # nothing was written before the first scene ended
+    during = json.loads(suite.scenes[2].covers)               # what an interrupted run would have left
+    assert [s['name'] for s in during['scenes']] == ['first', 'second'] and during['pending'] == ['third']
+    text = (tmp_path / ACCURACY_MD).read_text()
+    assert 'unfinished' not in text and suite.pending == ()
+    final = json.loads((tmp_path / ACCURACY_JSON).read_text())
+    assert final['pending'] == [] and len(final['scenes']) == 3
+
+
 def test_refuses_duplicates_and_bag_scenes_without_a_replay(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match='repeated: micro'):
         run_suite('test', [MICRO, MICRO], tmp_path, _options())
