@@ -94,7 +94,9 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
     Gradients: colour/opacity reach density and colour; the fruit probability and the embedding are composited
     with **detached** weights from detached features, so they only train their own heads. When only the
     instance head is wanted (``colour=False, semantic=False``), density is evaluated without autograd and the
-    instance head only at samples whose weight exceeds ``settings.weight_threshold``.
+    instance head only at samples whose weight exceeds ``settings.weight_threshold``. Without autograd (evaluation,
+    export) the colour and semantic heads are evaluated at those samples only, too: the ones left out add less
+    than ``weight_threshold`` each (opacity and depth still use every sample).
 
     Args:
         field: the neural field.
@@ -121,20 +123,31 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             geo = geometry(samples.positions)
             weights = render_weights(samples, geo.density)
         rgb = fruit_prob = embedding = dist = los = None
+        # inference: heads only where the weight counts (training needs every sample's gradient)
+        heads_at = (None if torch.is_grad_enabled() or settings.weight_threshold <= 0
+                    else torch.nonzero(weights > settings.weight_threshold).squeeze(1))
         if colour:
             if torch.is_grad_enabled():
                 dist = distortion(samples, weights, num_rays=distortion_rays)
             if depth_target is not None:
                 los = line_of_sight(samples, rays, weights, depth_target, grid.aabb, settings.near)
-            values = field.rgb(geo.features, samples.directions)
             opacity = accumulation(samples, weights)
             behind = field.background_rgb(rays.directions)
-            rgb = composite(samples, weights, values) + (1.0 - opacity[:, None]) * behind
+            if heads_at is None:
+                rgb = composite(samples, weights, field.rgb(geo.features, samples.directions))
+            else:
+                rgb = _composite_at(samples, weights, heads_at,
+                                    field.rgb(geo.features[heads_at], samples.directions[heads_at]))
+            rgb = rgb + (1.0 - opacity[:, None]) * behind
         else:
             opacity = accumulation(samples, weights.detach())
         if semantic:
-            prob = torch.sigmoid(field.fruit_logit(samples.positions, geo.features))
-            fruit_prob = composite(samples, weights.detach(), prob[:, None])[:, 0]
+            if heads_at is None:
+                prob = torch.sigmoid(field.fruit_logit(samples.positions, geo.features))
+                fruit_prob = composite(samples, weights.detach(), prob[:, None])[:, 0]
+            else:
+                prob = torch.sigmoid(field.fruit_logit(samples.positions[heads_at], geo.features[heads_at]))
+                fruit_prob = _composite_at(samples, weights, heads_at, prob[:, None])[:, 0]
         if instance:
             w = weights.detach()
             keep = torch.nonzero(w > settings.weight_threshold).squeeze(1)
@@ -143,6 +156,13 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             embedding = out.index_add(0, samples.ray_index[keep], w[keep, None] * emb)
         median = _median_depth(samples, rays, weights.detach(), opacity.detach()) if depth else None
     return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist, median, los)
+
+
+def _composite_at(samples: RaySamples, weights: torch.Tensor, index: torch.Tensor, values: torch.Tensor
+                  ) -> torch.Tensor:
+    """Per ray [N, C], the sum of ``weights[index]`` times ``values`` [K, C] (the values of samples ``index``)."""
+    out = values.new_zeros(samples.num_rays, values.shape[1])
+    return out.index_add(0, samples.ray_index[index], weights[index, None].to(values.dtype) * values)
 
 
 def _median_depth(samples: RaySamples, rays: RayBundle, weights: torch.Tensor, opacity: torch.Tensor) -> torch.Tensor:

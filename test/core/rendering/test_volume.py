@@ -95,3 +95,25 @@ def test_rendering_with_and_without_early_termination_is_equal() -> None:
     early = render_rays(field, grid, rays, RenderSettings(step=0.01, near=0.0, stop_transmittance=1e-3))
     assert early.num_samples < full.num_samples  # it did drop samples (density e^4 over 1 m is opaque)
     assert torch.allclose(early.rgb, full.rgb, atol=2e-3) and torch.allclose(early.opacity, full.opacity, atol=2e-3)
+
+
+def test_inference_evaluates_the_heads_only_where_the_weight_counts() -> None:
+    """Without autograd the colour and semantic heads see only the samples of weight > weight_threshold; the
+    rendered colour and fruit probability stay within the dropped weight of the full composite."""
+    torch.manual_seed(0)
+    field = FruitField(FieldConfig(geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, coarsest_cell=1.0,
+                                                                finest_cell=0.125), hidden_dim=16, density_bias=4.0),
+                       AABB.numpy(), 0.25)
+    grid = OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
+    rays = _rays(32)
+    settings = RenderSettings(step=0.01, near=0.0, stop_transmittance=0.0, weight_threshold=1e-4)
+    seen: list[int] = []
+    logit = field.fruit_logit
+    field.fruit_logit = lambda xyz, features: (seen.append(len(xyz)), logit(xyz, features))[1]  # type: ignore
+    full = render_rays(field, grid, rays, settings, semantic=True)          # autograd on: every sample
+    with torch.no_grad():
+        fast = render_rays(field, grid, rays, settings, semantic=True)
+    assert seen[0] == full.num_samples and 0 < seen[1] < full.num_samples / 2
+    assert torch.allclose(fast.rgb, full.rgb.detach(), atol=2e-3)
+    assert torch.allclose(fast.fruit_prob, full.fruit_prob.detach(), atol=2e-3)
+    assert torch.equal(fast.opacity, full.opacity.detach())
