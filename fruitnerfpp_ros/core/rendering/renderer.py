@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 from typing import Callable, NamedTuple
 
 import torch
@@ -120,7 +121,10 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             samples = _early_terminated(samples, geometry, settings.stop_transmittance)
         needs_graph = (colour or semantic) and torch.is_grad_enabled()
         with torch.set_grad_enabled(needs_graph):
-            geo = geometry(samples.positions)
+            if not torch.is_grad_enabled() and settings.stop_transmittance > 0:
+                geo = _front_to_back(samples, geometry, settings.stop_transmittance)
+            else:
+                geo = geometry(samples.positions)
             weights = render_weights(samples, geo.density)
         rgb = fruit_prob = embedding = dist = los = None
         # inference: heads only where the weight counts (training needs every sample's gradient)
@@ -156,6 +160,37 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             embedding = out.index_add(0, samples.ray_index[keep], w[keep, None] * emb)
         median = _median_depth(samples, rays, weights.detach(), opacity.detach()) if depth else None
     return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist, median, los)
+
+
+def _front_to_back(samples: RaySamples, geometry: GeometryFn, stop_transmittance: float, *,
+                   window: int = 16) -> GeometryOutput:
+    """The field at ``samples``, evaluated ``window`` steps at a time along the rays and only on rays whose
+    transmittance is still above ``stop_transmittance`` (inference: the samples behind an opaque surface are never
+    evaluated; they get density 0 and zero features, and would have added less than ``stop_transmittance``)."""
+    n = samples.positions.shape[0]
+    step_index = samples.slot % samples.max_samples
+    alive = torch.ones(samples.num_rays, dtype=torch.bool, device=samples.positions.device)
+    optical = torch.zeros(samples.num_rays, device=samples.positions.device)
+    density = features = None
+    limit = -math.log(stop_transmittance)
+    for first in range(0, samples.max_samples, window):
+        in_window = (step_index >= first) & (step_index < first + window)
+        idx = torch.nonzero(in_window & alive[samples.ray_index]).squeeze(1)
+        if len(idx) == 0:
+            if not bool(alive.any()):
+                break
+            continue
+        part = geometry(samples.positions[idx])
+        if density is None:
+            density = part.density.new_zeros(n)
+            features = part.features.new_zeros(n, part.features.shape[1])
+        density[idx] = part.density
+        features[idx] = part.features
+        optical.index_add_(0, samples.ray_index[idx], part.density.float() * samples.step)
+        alive = optical < limit
+    if density is None:  # no sample at all
+        return geometry(samples.positions)
+    return GeometryOutput(density, features)
 
 
 def _composite_at(samples: RaySamples, weights: torch.Tensor, index: torch.Tensor, values: torch.Tensor

@@ -117,3 +117,32 @@ def test_inference_evaluates_the_heads_only_where_the_weight_counts() -> None:
     assert torch.allclose(fast.rgb, full.rgb.detach(), atol=2e-3)
     assert torch.allclose(fast.fruit_prob, full.fruit_prob.detach(), atol=2e-3)
     assert torch.equal(fast.opacity, full.opacity.detach())
+
+
+def test_inference_marches_front_to_back_and_stops_at_opaque_surfaces() -> None:
+    """Without autograd the field is evaluated window by window along the rays and no longer behind the point
+    where a ray's transmittance fell below stop_transmittance: fewer evaluations, the same picture and depth."""
+    torch.manual_seed(0)
+    field = FruitField(FieldConfig(geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, coarsest_cell=1.0,
+                                                                finest_cell=0.125), hidden_dim=16, density_bias=4.0),
+                       AABB.numpy(), 0.25)
+    grid = OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
+    rays = _rays(32)
+    evaluated: list[int] = []
+
+    def geometry(xyz: torch.Tensor):  # type: ignore[no-untyped-def]
+        evaluated.append(len(xyz))
+        return field.geometry(xyz)
+
+    with torch.no_grad():
+        full = render_rays(field, grid, rays, RenderSettings(step=0.01, near=0.0, stop_transmittance=0.0),
+                           semantic=True, instance=True, depth=True, geometry_fn=geometry)
+        n_full = sum(evaluated)
+        evaluated.clear()
+        fast = render_rays(field, grid, rays, RenderSettings(step=0.01, near=0.0, stop_transmittance=1e-3),
+                           semantic=True, instance=True, depth=True, geometry_fn=geometry)
+    assert n_full == full.num_samples and max(evaluated) <= 16 * len(rays.origins) and sum(evaluated) < n_full / 2
+    for a, b in ((fast.rgb, full.rgb), (fast.opacity, full.opacity), (fast.fruit_prob, full.fruit_prob),
+                 (fast.embedding, full.embedding)):
+        assert torch.allclose(a, b, atol=2e-3)
+    assert torch.equal(fast.depth, full.depth)
