@@ -83,13 +83,18 @@ def test_distortion_loss_equals_the_brute_force_double_sum() -> None:
     assert only != pytest.approx(float(distortion(samples, weights)))
 
 
-def test_rendering_with_and_without_early_termination_is_equal() -> None:
-    """Dropping samples behind transmittance 1e-3 changes the rendered colour by less than that bound."""
+def _opaque_field() -> tuple[FruitField, OccupancyGrid]:
+    """A small random field whose density (e^4 per metre) turns a 1 m ray opaque, and an all-occupied grid."""
     torch.manual_seed(0)
     field = FruitField(FieldConfig(geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, coarsest_cell=1.0,
                                                                 finest_cell=0.125), hidden_dim=16, density_bias=4.0),
                        AABB.numpy(), 0.25)
-    grid = OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
+    return field, OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
+
+
+def test_rendering_with_and_without_early_termination_is_equal() -> None:
+    """Dropping samples behind transmittance 1e-3 changes the rendered colour by less than that bound."""
+    field, grid = _opaque_field()
     rays = _rays(32)
     full = render_rays(field, grid, rays, RenderSettings(step=0.01, near=0.0, stop_transmittance=0.0))
     early = render_rays(field, grid, rays, RenderSettings(step=0.01, near=0.0, stop_transmittance=1e-3))
@@ -100,11 +105,7 @@ def test_rendering_with_and_without_early_termination_is_equal() -> None:
 def test_inference_evaluates_the_heads_only_where_the_weight_counts() -> None:
     """Without autograd the colour and semantic heads see only the samples of weight > weight_threshold; the
     rendered colour and fruit probability stay within the dropped weight of the full composite."""
-    torch.manual_seed(0)
-    field = FruitField(FieldConfig(geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, coarsest_cell=1.0,
-                                                                finest_cell=0.125), hidden_dim=16, density_bias=4.0),
-                       AABB.numpy(), 0.25)
-    grid = OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
+    field, grid = _opaque_field()
     rays = _rays(32)
     settings = RenderSettings(step=0.01, near=0.0, stop_transmittance=0.0, weight_threshold=1e-4)
     seen: list[int] = []
@@ -122,11 +123,7 @@ def test_inference_evaluates_the_heads_only_where_the_weight_counts() -> None:
 def test_inference_marches_front_to_back_and_stops_at_opaque_surfaces() -> None:
     """Without autograd the field is evaluated window by window along the rays and no longer behind the point
     where a ray's transmittance fell below stop_transmittance: fewer evaluations, the same picture and depth."""
-    torch.manual_seed(0)
-    field = FruitField(FieldConfig(geometry_grid=HashGridConfig(num_levels=4, log2_table_size=12, coarsest_cell=1.0,
-                                                                finest_cell=0.125), hidden_dim=16, density_bias=4.0),
-                       AABB.numpy(), 0.25)
-    grid = OccupancyGrid(AABB, resolution=4, threshold=0.01, decay=0.95)
+    field, grid = _opaque_field()
     rays = _rays(32)
     evaluated: list[int] = []
 
