@@ -41,11 +41,12 @@ class EvalMetrics(NamedTuple):
 
 
 class ViewRender(NamedTuple):
-    """A whole rendered view: rgb [H, W, 3], fruit_prob [H, W], embedding [H, W, D] (normalised)."""
+    """A whole rendered view: rgb [H, W, 3], fruit_prob [H, W], embedding [H, W, D] (normalised); a head that was
+    not rendered is None."""
 
     rgb: torch.Tensor
-    fruit_prob: torch.Tensor
-    embedding: torch.Tensor
+    fruit_prob: torch.Tensor | None
+    embedding: torch.Tensor | None
 
 
 def psnr_from_mse(mse: float) -> float:
@@ -90,8 +91,8 @@ def instance_assignment_accuracy(embedding: torch.Tensor, instance_mask: torch.T
 
 @torch.no_grad()
 def render_view(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, view: int, settings: RenderSettings,
-                chunk_rays: int) -> ViewRender:
-    """Render every pixel of dataset view ``view`` (chunked)."""
+                chunk_rays: int, *, semantic: bool = True, instance: bool = True) -> ViewRender:
+    """Render every pixel of dataset view ``view`` (chunked); the heads not asked for come back as None."""
     device = grid.aabb.device
     h, w = dataset.height, dataset.width
     flat = torch.arange(h * w, device=device)
@@ -102,34 +103,41 @@ def render_view(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, v
     for start in range(0, h * w, chunk_rays):
         part = flat[start:start + chunk_rays]
         rays = rays_for_pixels(poses, intrinsics, views[start:start + chunk_rays], part // w, part % w)
-        outs.append(render_rays(field, grid, rays, settings, semantic=True, instance=True))
+        outs.append(render_rays(field, grid, rays, settings, semantic=semantic, instance=instance))
     rgb = torch.cat([o.rgb for o in outs]).reshape(h, w, 3)
-    prob = torch.cat([o.fruit_prob for o in outs]).reshape(h, w)
-    emb = F.normalize(torch.cat([o.embedding for o in outs]), dim=-1).reshape(h, w, -1)
+    prob = torch.cat([o.fruit_prob for o in outs]).reshape(h, w) if semantic else None
+    emb = F.normalize(torch.cat([o.embedding for o in outs]), dim=-1).reshape(h, w, -1) if instance else None
     return ViewRender(rgb, prob, emb)
 
 
 @torch.no_grad()
 def evaluate_views(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, views: list[int],
-                   settings: RenderSettings, chunk_rays: int) -> EvalMetrics:
-    """PSNR, semantic IoU and instance assignment accuracy over ``views`` (typically the held-out ones)."""
+                   settings: RenderSettings, chunk_rays: int, *, semantic: bool = True,
+                   instance: bool = True) -> EvalMetrics:
+    """PSNR, semantic IoU and instance assignment accuracy over ``views`` (typically the held-out ones).
+
+    ``semantic`` / ``instance`` False: that head is not rendered (not trained yet: the stage-end evaluation of the
+    earlier stages) and its figure is NaN.
+    """
     if not views:
         nan = float('nan')
         return EvalMetrics(nan, nan, nan, 0)
     sq_err, pixels, inter, union, correct, chance, total = 0.0, 0, 0, 0, 0.0, 0.0, 0
     for view in views:
-        out = render_view(field, grid, dataset, view, settings, chunk_rays)
+        out = render_view(field, grid, dataset, view, settings, chunk_rays, semantic=semantic, instance=instance)
         device = out.rgb.device
-        valid = (torch.ones(out.fruit_prob.shape, dtype=torch.bool, device=device) if dataset.valid_masks is None
+        valid = (torch.ones(out.rgb.shape[:2], dtype=torch.bool, device=device) if dataset.valid_masks is None
                  else dataset.valid_masks[view].to(device))
         image = dataset.images[view].to(device)
         sq_err += float(((out.rgb - image) ** 2)[valid].sum()) / 3.0
         pixels += int(valid.sum())
-        i, u = semantic_iou(out.fruit_prob[valid], dataset.semantic_masks[view].to(device)[valid])
-        inter, union = inter + i, union + u
-        c, ch, t = instance_assignment_accuracy(out.embedding.reshape(-1, out.embedding.shape[-1]),
-                                                dataset.instance_masks[view].reshape(-1).to(device))
-        correct, chance, total = correct + c, chance + ch, total + t
+        if out.fruit_prob is not None:
+            i, u = semantic_iou(out.fruit_prob[valid], dataset.semantic_masks[view].to(device)[valid])
+            inter, union = inter + i, union + u
+        if out.embedding is not None:
+            c, ch, t = instance_assignment_accuracy(out.embedding.reshape(-1, out.embedding.shape[-1]),
+                                                    dataset.instance_masks[view].reshape(-1).to(device))
+            correct, chance, total = correct + c, chance + ch, total + t
     nan = float('nan')
     return EvalMetrics(psnr_from_mse(sq_err / pixels) if pixels else nan, inter / union if union else nan,
                        correct / total if total else nan, len(views), chance / total if total else nan)

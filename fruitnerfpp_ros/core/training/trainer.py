@@ -314,7 +314,9 @@ def _finish_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDat
     """Held-out evaluation, the stage-end log line and summary; moves the counters to the next stage."""
     model.field.eval()
     eval_views = [int(v) for v in dataset.eval_indices[:config.eval_max_views]]
-    metrics = evaluate_views(model.field, model.grid, dataset, eval_views, model.settings, config.render.chunk_rays)
+    # the heads a stage has not trained yet are not rendered (their figures are NaN: null in metrics.jsonl)
+    metrics = evaluate_views(model.field, model.grid, dataset, eval_views, model.settings, config.render.chunk_rays,
+                             semantic=stage.name != 'geometry', instance=stage.name == 'instance')
     run.append_metrics({'stage': stage.name, 'event': 'stage_end', 'step': counters.step,
                         'global_step': counters.global_step, 'wall_s': round(counters.stage_wall, 3),
                         'eval_psnr': metrics.psnr, 'eval_semantic_iou': metrics.semantic_iou,

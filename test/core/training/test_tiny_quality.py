@@ -5,6 +5,7 @@ Figures are held-out views (every 8th), compared with an untrained field of the 
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -64,3 +65,20 @@ def test_trained_scene_answers_queries_for_export(tiny_trained_run: Path) -> Non
     cos = emb @ emb.T
     off = cos[~torch.eye(len(fruits), dtype=torch.bool)]
     assert float(off.mean()) < float(cos.diagonal().mean()) - 0.3  # different fruits, different embeddings
+
+
+def test_the_heads_a_stage_has_not_trained_are_not_evaluated(tiny_trained_run: Path) -> None:
+    """The geometry stage's evaluation renders colour only, the semantic stage's no embedding: their untrained
+    heads would cost most of the evaluation and score nothing (NaN, null in metrics.jsonl)."""
+    ends = {r['stage']: r for r in RunDir(tiny_trained_run).read_metrics() if r.get('event') == 'stage_end'}
+    assert ends['geometry']['eval_semantic_iou'] is None and ends['geometry']['eval_instance_acc'] is None
+    assert ends['semantic']['eval_semantic_iou'] > 0 and ends['semantic']['eval_instance_acc'] is None
+    assert all(ends[s]['eval_psnr'] > 0 for s in ends)
+    scene = load_trained_scene(tiny_trained_run, device='cpu')
+    dataset = load_dataset(scene.dataset_dir, eval_every=scene.config.data.eval_every)
+    view = [int(dataset.eval_indices[0])]
+    colour = evaluate_views(scene.field, scene.occupancy, dataset, view, scene.render_settings, 4096,
+                            semantic=False, instance=False)
+    full = evaluate_views(scene.field, scene.occupancy, dataset, view, scene.render_settings, 4096)
+    assert colour.psnr == full.psnr and math.isnan(colour.semantic_iou) and math.isnan(colour.instance_acc)
+    assert full.semantic_iou > 0 and full.instance_acc > 0
