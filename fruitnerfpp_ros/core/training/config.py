@@ -42,9 +42,9 @@ class DataConfig:
     aabb_padding: float = 0.05
     """Derived box grown by this fraction of its largest side on every face."""
     box_margin_m: float | None = 0.5
-    """Across (x, y) and from above, the camera-derived box is cut to the fruit region (where the fruit masks of many
-    views agree, see ``scale``) and the cameras, grown by this margin (m); its floor is kept (training/scene_box.py).
-    None keeps the whole camera-derived box."""
+    """Across (x, y) the camera-derived box is cut to the fruit region (where the fruit masks of many views agree,
+    see ``scale``) and the cameras, grown by this margin (m); its height is kept (training/scene_box.py). None keeps
+    the whole camera-derived box."""
     min_fruit_pixels: int = 4
     """Fruit masks with fewer pixels are ignored by the group sampler."""
 

@@ -32,17 +32,13 @@ def measure_scene(dataset: SceneDataset, config: TrainConfig, device: torch.devi
 
 def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
                     camera_centres: np.ndarray | None = None) -> np.ndarray:
-    """``config.data.aabb`` when set; else the cameras' box, cut across (x, y) and from above to the fruit region
-    and the cameras.
+    """``config.data.aabb`` when set; else the cameras' box, cut across (x, y) to the fruit region and the cameras.
 
-    The box holds the cameras and the fruit region with ``box_margin_m`` to spare, and keeps the camera box's floor
-    (the ground under the tree stays in). It must reach past the cameras: a view sees ground and sky beyond the
-    tree, and what a box cannot hold behind the tree is painted on its far face, which, unless it lies behind the
-    cameras on the other side of the tree, stands in front of their views (a robot row with the box cut 0.5 m
-    from the fruit: held-out PSNR 16 dB; with the far faces behind the other side's cameras: 22 dB). The top face
-    is above every camera, so the sky painted on it stands behind everything a view sees: the camera box's own top
-    follows the frustums, 12.5 m up for level cameras on a 2 m mast 3 m from the row, which left the hash grid a
-    box 2.8x larger than the scene needs.
+    The box holds the cameras and the fruit region with ``box_margin_m`` to spare, and keeps the camera box's full
+    height (the ground under the tree stays in). It must reach past the cameras: a view sees ground and sky beyond
+    the tree, and what a box cannot hold behind the tree is painted on its far face, which, unless it lies behind
+    the cameras on the other side of the tree, stands in front of their views (a robot row with the box cut 0.5 m
+    from the fruit: held-out PSNR 16 dB; with the far faces behind the other side's cameras: 22 dB).
 
     Raises:
         DatasetError: an explicit box with max <= min on an axis, or a cut that leaves nothing.
@@ -63,7 +59,7 @@ def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
     else:
         lo, hi = region[0] - margin, region[1] + margin
     box[0, :2] = np.maximum(box[0, :2], lo[:2])
-    box[1] = np.minimum(box[1], hi)
+    box[1, :2] = np.minimum(box[1, :2], hi[:2])
     if not np.all(box[1] > box[0]):
         raise DatasetError(f'the fruit region {np.round(region, 3).tolist()} lies outside the cameras\' box '
                            f'{np.round(cameras, 3).tolist()}: check the poses\' frame and the masks')
