@@ -97,7 +97,9 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
     instance head is wanted (``colour=False, semantic=False``), density is evaluated without autograd and the
     instance head only at samples whose weight exceeds ``settings.weight_threshold``. Without autograd (evaluation,
     export) the colour and semantic heads are evaluated at those samples only, too: the ones left out add less
-    than ``weight_threshold`` each (opacity and depth still use every sample).
+    than ``weight_threshold`` each (opacity and depth still use every sample); and whenever density needs no
+    autograd (also the instance stage) it is evaluated front to back, no further along a ray than where its
+    transmittance falls below ``settings.stop_transmittance``.
 
     Args:
         field: the neural field.
@@ -127,37 +129,29 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
                 geo = geometry(samples.positions)
             weights = render_weights(samples, geo.density)
         rgb = fruit_prob = embedding = dist = los = None
-        # inference: heads only where the weight counts (training needs every sample's gradient)
-        heads_at = (None if torch.is_grad_enabled() or settings.weight_threshold <= 0
-                    else torch.nonzero(weights > settings.weight_threshold).squeeze(1))
+        # the heads only where the weight counts (weighted): the instance head always, colour and semantic without
+        # autograd (inference_at: evaluation, export); training needs their gradient at every sample
+        weighted = (torch.nonzero(weights.detach() > settings.weight_threshold).squeeze(1)
+                    if instance or not torch.is_grad_enabled() else None)
+        inference_at = weighted if not torch.is_grad_enabled() and settings.weight_threshold > 0 else None
         if colour:
             if torch.is_grad_enabled():
                 dist = distortion(samples, weights, num_rays=distortion_rays)
             if depth_target is not None:
                 los = line_of_sight(samples, rays, weights, depth_target, grid.aabb, settings.near)
             opacity = accumulation(samples, weights)
-            behind = field.background_rgb(rays.directions)
-            if heads_at is None:
-                rgb = composite(samples, weights, field.rgb(geo.features, samples.directions))
-            else:
-                rgb = _composite_at(samples, weights, heads_at,
-                                    field.rgb(geo.features[heads_at], samples.directions[heads_at]))
-            rgb = rgb + (1.0 - opacity[:, None]) * behind
+            values = field.rgb(_take(geo.features, inference_at), _take(samples.directions, inference_at))
+            rgb = _composite_at(samples, weights, inference_at, values)
+            rgb = rgb + (1.0 - opacity[:, None]) * field.background_rgb(rays.directions)
         else:
             opacity = accumulation(samples, weights.detach())
         if semantic:
-            if heads_at is None:
-                prob = torch.sigmoid(field.fruit_logit(samples.positions, geo.features))
-                fruit_prob = composite(samples, weights.detach(), prob[:, None])[:, 0]
-            else:
-                prob = torch.sigmoid(field.fruit_logit(samples.positions[heads_at], geo.features[heads_at]))
-                fruit_prob = _composite_at(samples, weights, heads_at, prob[:, None])[:, 0]
+            logit = field.fruit_logit(_take(samples.positions, inference_at), _take(geo.features, inference_at))
+            prob = torch.sigmoid(logit)
+            fruit_prob = _composite_at(samples, weights.detach(), inference_at, prob[:, None])[:, 0]
         if instance:
-            w = weights.detach()
-            keep = torch.nonzero(w > settings.weight_threshold).squeeze(1)
-            emb = field.embedding(samples.positions[keep], geo.features.detach()[keep])
-            out = emb.new_zeros(samples.num_rays, emb.shape[1])
-            embedding = out.index_add(0, samples.ray_index[keep], w[keep, None] * emb)
+            emb = field.embedding(samples.positions[weighted], geo.features.detach()[weighted])
+            embedding = _composite_at(samples, weights.detach(), weighted, emb)
         median = _median_depth(samples, rays, weights.detach(), opacity.detach()) if depth else None
     return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist, median, los)
 
@@ -174,11 +168,11 @@ def _front_to_back(samples: RaySamples, geometry: GeometryFn, stop_transmittance
     density = features = None
     limit = -math.log(stop_transmittance)
     for first in range(0, samples.max_samples, window):
+        if not bool(alive.any()):
+            break
         in_window = (step_index >= first) & (step_index < first + window)
         idx = torch.nonzero(in_window & alive[samples.ray_index]).squeeze(1)
         if len(idx) == 0:
-            if not bool(alive.any()):
-                break
             continue
         part = geometry(samples.positions[idx])
         if density is None:
@@ -193,9 +187,17 @@ def _front_to_back(samples: RaySamples, geometry: GeometryFn, stop_transmittance
     return GeometryOutput(density, features)
 
 
-def _composite_at(samples: RaySamples, weights: torch.Tensor, index: torch.Tensor, values: torch.Tensor
+def _take(values: torch.Tensor, index: torch.Tensor | None) -> torch.Tensor:
+    """``values`` at the samples ``index`` (all of them when None)."""
+    return values if index is None else values[index]
+
+
+def _composite_at(samples: RaySamples, weights: torch.Tensor, index: torch.Tensor | None, values: torch.Tensor
                   ) -> torch.Tensor:
-    """Per ray [N, C], the sum of ``weights[index]`` times ``values`` [K, C] (the values of samples ``index``)."""
+    """Per ray [N, C], the sum of ``weights[index]`` times ``values`` [K, C] (the values of samples ``index``;
+    every sample when None)."""
+    if index is None:
+        return composite(samples, weights, values)
     out = values.new_zeros(samples.num_rays, values.shape[1])
     return out.index_add(0, samples.ray_index[index], weights[index, None].to(values.dtype) * values)
 

@@ -110,7 +110,12 @@ def test_inference_evaluates_the_heads_only_where_the_weight_counts() -> None:
     settings = RenderSettings(step=0.01, near=0.0, stop_transmittance=0.0, weight_threshold=1e-4)
     seen: list[int] = []
     logit = field.fruit_logit
-    field.fruit_logit = lambda xyz, features: (seen.append(len(xyz)), logit(xyz, features))[1]  # type: ignore
+
+    def counted_logit(xyz: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        seen.append(len(xyz))
+        return logit(xyz, features)
+
+    field.fruit_logit = counted_logit  # type: ignore[method-assign]
     full = render_rays(field, grid, rays, settings, semantic=True)          # autograd on: every sample
     with torch.no_grad():
         fast = render_rays(field, grid, rays, settings, semantic=True)
