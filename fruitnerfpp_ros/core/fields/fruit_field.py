@@ -7,7 +7,8 @@ poses; each adds its own small hash grid over the raw position (fruit boundaries
 need features finer than the 15-d geometry feature carries, above all early in training).
 
 Points are normalised per axis to the unit cube of the scene box; density is returned in 1/m and is zero
-outside the box. Rays that leave the box see a learned background colour.
+outside the box. What rays see after they leave the box comes from the far field (:mod:`.far_field`): a coarse
+density + colour field over contracted space, trained with the geometry.
 """
 
 from __future__ import annotations
@@ -20,11 +21,16 @@ import numpy as np
 import torch
 from torch import nn
 
+from fruitnerfpp_ros.core.data.rays import RayBundle
+from fruitnerfpp_ros.core.fields.far_field import FarField, FarFieldConfig, far_sample_distances
 from fruitnerfpp_ros.core.fields.hash_grid import HashGridConfig, HashGridEncoding
 from fruitnerfpp_ros.core.fields.mlp import init_mlp, make_mlp, spherical_harmonics, trunc_exp
 from fruitnerfpp_ros.core.fields.query import FieldQuery
 
-__all__ = ['FieldConfig', 'FruitField', 'GeometryOutput', 'HashGridConfig']
+__all__ = ['FarFieldConfig', 'FieldConfig', 'FruitField', 'GeometryOutput', 'HashGridConfig']
+
+#: Optical depth of a far-field interval beyond which it is opaque (transmittance e^-30).
+_OPAQUE_TAU = 30.0
 
 
 @dataclass(frozen=True)
@@ -59,6 +65,9 @@ class FieldConfig:
     """Hidden layers of the instance MLP."""
     background_sh: bool = False
     """Let the background colour vary with the ray direction (an environment map)."""
+    far_field: FarFieldConfig = _field(default_factory=FarFieldConfig)
+    """The field beyond the scene box (ground and orchard seen past the tree); ``samples: 0`` = a constant
+    background colour only."""
     density_bias: float | None = None
     """Initial bias of the density output (density = exp(raw) 1/m); None = the trainer's choice: half the
     occupancy threshold's density at the run's marching step, so untrained space starts just below occupied."""
@@ -115,12 +124,15 @@ class FruitField(nn.Module):
             nn.init.zeros_(self.background.bias)
             if c.density_bias is not None:
                 self.density_mlp[-1].bias[0].fill_(c.density_bias)
+        # created last: the other modules draw the same initial weights with and without it
+        self.far = FarField(c.far_field, self.aabb, generator) if c.far_field.enabled else None
 
     # -- parameter groups of the cascaded schedule ------------------------------------------------------------
     def geometry_parameters(self) -> Iterator[nn.Parameter]:
-        """Density + colour (+ background colour): trained in stages 1 and 2."""
-        for module in (self.encoding, self.density_mlp, self.color_mlp, self.background):
-            yield from module.parameters()
+        """Density + colour (+ background colour and the far field): trained in stages 1 and 2."""
+        for module in (self.encoding, self.density_mlp, self.color_mlp, self.background, self.far):
+            if module is not None:
+                yield from module.parameters()
 
     def semantic_parameters(self) -> Iterator[nn.Parameter]:
         """The semantic encoding and head: trained in stage 2."""
@@ -164,6 +176,26 @@ class FruitField(nn.Module):
         if not self.config.background_sh:  # the constant term only (no host-to-device copy per call)
             sh = torch.cat([sh[:, :1], torch.zeros_like(sh[:, 1:])], dim=1)
         return torch.sigmoid(self.background(sh.to(self.background.weight.dtype)).float())
+
+    def beyond_box_rgb(self, rays: RayBundle, t_exit: torch.Tensor, jitter: torch.Tensor | None = None
+                       ) -> torch.Tensor:
+        """Colour [N, 3] that ``rays`` see after leaving the box at distance ``t_exit`` [N]: the far field's samples
+        composited front to back (``jitter``: [N] sample offsets in [0, 1) in training), the background colour
+        where the far field stays transparent; the background colour alone without a far field."""
+        background = self.background_rgb(rays.directions)
+        if self.far is None or len(t_exit) == 0:
+            return background
+        # rays detached: the far field's points lie up to hundreds of metres out, where a pose's rotation moves
+        # them by metres; the camera poses are refined from the box alone
+        t, length = far_sample_distances(t_exit.detach(), self.far.config.samples, jitter)
+        points = rays.origins.detach()[:, None, :] + t[..., None] * rays.directions.detach()[:, None, :]
+        density, colour = self.far(points.reshape(-1, 3))
+        # optical depth per interval capped where it is opaque anyway (the unbounded last one would overflow)
+        tau = (density.view(t.shape) * length).clamp(max=_OPAQUE_TAU)
+        before = torch.cumsum(tau, dim=1) - tau
+        weights = torch.exp(-before) * (1.0 - torch.exp(-tau))
+        far_rgb = (weights[..., None] * colour.view(*t.shape, 3)).sum(1)
+        return far_rgb + torch.exp(-(before[:, -1:] + tau[:, -1:])) * background
 
     def density_and_fruit_prob(self, xyz: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Density [N] (1/m) and fruit probability [N] at world points [N, 3], without the colour and instance heads

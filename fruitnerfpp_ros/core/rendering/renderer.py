@@ -8,7 +8,7 @@ from typing import Callable, NamedTuple
 
 import torch
 
-from fruitnerfpp_ros.core.data.rays import RayBundle
+from fruitnerfpp_ros.core.data.rays import RayBundle, intersect_aabb
 from fruitnerfpp_ros.core.rendering.depth_loss import DepthTarget, LineOfSight, line_of_sight
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField, GeometryOutput
 from fruitnerfpp_ros.core.rendering.marching import RaySamples, march_rays
@@ -142,7 +142,7 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             opacity = accumulation(samples, weights)
             values = field.rgb(_take(geo.features, inference_at), _take(samples.directions, inference_at))
             rgb = _composite_at(samples, weights, inference_at, values)
-            rgb = rgb + (1.0 - opacity[:, None]) * field.background_rgb(rays.directions)
+            rgb = rgb + (1.0 - opacity[:, None]) * _beyond_box(field, grid, rays, opacity, settings, jitter)
         else:
             opacity = accumulation(samples, weights.detach())
         if semantic:
@@ -154,6 +154,22 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             embedding = _composite_at(samples, weights.detach(), weighted, emb)
         median = _median_depth(samples, rays, weights.detach(), opacity.detach()) if depth else None
     return RenderOutput(rgb, opacity, fruit_prob, embedding, int(samples.positions.shape[0]), dist, median, los)
+
+
+def _beyond_box(field: FruitField, grid: OccupancyGrid, rays: RayBundle, opacity: torch.Tensor,
+                settings: RenderSettings, jitter: torch.Tensor | None) -> torch.Tensor:
+    """[N, 3] what each ray sees behind the box (:meth:`FruitField.beyond_box_rgb`); without autograd only for the
+    rays whose transmittance through the box is above ``settings.stop_transmittance`` (zero for the others)."""
+    _, t_exit = intersect_aabb(rays, grid.aabb, settings.near)
+    t_exit = t_exit.clamp_min(max(settings.near, 1e-3))  # a ray that misses the box: from ``near`` on
+    if torch.is_grad_enabled():
+        return field.beyond_box_rgb(rays, t_exit, jitter)
+    seen = torch.nonzero(1.0 - opacity.detach() > settings.stop_transmittance).squeeze(1)
+    out = torch.zeros(len(t_exit), 3, device=t_exit.device)
+    if len(seen):
+        part = RayBundle(rays.origins[seen], rays.directions[seen])
+        out[seen] = field.beyond_box_rgb(part, t_exit[seen], None if jitter is None else jitter[seen]).float()
+    return out
 
 
 def _front_to_back(samples: RaySamples, geometry: GeometryFn, stop_transmittance: float, *,

@@ -109,8 +109,11 @@ def load_trained_scene(run_dir: str | Path, device: str = 'auto') -> TrainedScen
     if state.get('version') != CHECKPOINT_VERSION:
         raise CheckpointError(f'{run.latest_checkpoint}: checkpoint version {state.get("version")} is not '
                               f'{CHECKPOINT_VERSION} (written by another release); train the run again')
+    stored = dict(state['config'])
+    if 'far_field' not in stored.get('field', {}):  # written before the far field existed: its field has none
+        stored['field'] = {**stored.get('field', {}), 'far_field': {'samples': 0}}
     try:
-        config = config_from_mapping(TrainConfig, state['config'])
+        config = config_from_mapping(TrainConfig, stored)
     except Exception as err:
         raise CheckpointError(f'{run.latest_checkpoint}: stored config is invalid: {err}') from err
     aabb = np.asarray(state['aabb'], dtype=np.float64)

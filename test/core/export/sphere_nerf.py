@@ -65,6 +65,9 @@ class SphereNeRF(nn.Module):
     def background_rgb(self, directions: torch.Tensor) -> torch.Tensor:
         return torch.full((len(directions), 3), 0.8)
 
+    def beyond_box_rgb(self, rays, t_exit: torch.Tensor, jitter: torch.Tensor | None = None) -> torch.Tensor:
+        return self.background_rgb(rays.directions)
+
     def fruit_logit(self, xyz: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
         inside, index = self._nearest(xyz)
         fruit = (inside & self.is_fruit[index]) | (self._in_fog(xyz) & ~inside)
