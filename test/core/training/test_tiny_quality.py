@@ -6,6 +6,7 @@ Figures are held-out views (every 8th), compared with an untrained field of the 
 from __future__ import annotations
 
 import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ import torch
 from fruitnerfpp_ros.core.data.dataset import load_dataset
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField
 from fruitnerfpp_ros.core.training import RunDir, load_trained_scene
+from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_checkpoint
 from fruitnerfpp_ros.core.training.model import occupancy_grid
 from fruitnerfpp_ros.core.training.metrics import evaluate_views
 
@@ -82,3 +84,25 @@ def test_the_heads_a_stage_has_not_trained_are_not_evaluated(tiny_trained_run: P
     full = evaluate_views(scene.field, scene.occupancy, dataset, view, scene.render_settings, 4096)
     assert colour.psnr == full.psnr and math.isnan(colour.semantic_iou) and math.isnan(colour.instance_acc)
     assert full.semantic_iou > 0 and full.instance_acc > 0
+
+
+def test_a_run_written_before_the_far_field_loads_and_renders_without_one(tiny_trained_run: Path,
+                                                                          tmp_path: Path) -> None:
+    """Checkpoints of older releases have no far-field weights and no ``far_field`` in their config: they load with
+    the constant background they were trained with, instead of failing on the missing weights."""
+    scene = load_trained_scene(tiny_trained_run, device='cpu')
+    assert scene.field.far is not None  # today's runs have one
+    old = tmp_path / 'old_run'
+    shutil.copytree(tiny_trained_run, old)
+    checkpoint = RunDir(old).latest_checkpoint
+    state = load_checkpoint(checkpoint)
+    state['config']['field'].pop('far_field')
+    state['field'] = {k: v for k, v in state['field'].items() if not k.startswith('far.')}
+    save_checkpoint(state, checkpoint)
+    loaded = load_trained_scene(old, device='cpu')
+    assert loaded.field.far is None
+    dataset = load_dataset(loaded.dataset_dir, eval_every=loaded.config.data.eval_every)
+    view = [int(dataset.eval_indices[0])]
+    metrics = evaluate_views(loaded.field, loaded.occupancy, dataset, view, loaded.render_settings,
+                             loaded.config.render.chunk_rays, semantic=False, instance=False)
+    assert math.isfinite(metrics.psnr) and metrics.psnr > 10.0
