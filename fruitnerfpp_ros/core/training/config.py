@@ -119,6 +119,10 @@ class GeometryStageConfig(StageSchedule):
     """Weight of the distortion loss (1/m): pulls each ray's weight together, against floaters and fog. Computed on
     the same uniformly drawn rays as the photometric loss (in stage 2 the fruit-biased rays train the semantic
     head only)."""
+    opacity_entropy_weight: float = 0.0
+    """Weight of the binary entropy of each uniform ray's opacity through the box: pushes a ray to either end in
+    the box or pass it for the far field, not both (a semi-transparent tree with the far field seen through it).
+    0 = off."""
     pose_lr: float = 0.0
     """Adam learning rate of the per-view pose corrections (radians, metres; pose_refinement.py), trained in
     stages 1 and 2 and decayed like ``lr``; 0 = the recorded poses are used as they are."""

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ['photometric_loss', 'semantic_loss', 'prototype_infonce', 'fruit_prototypes']
+__all__ = ['photometric_loss', 'semantic_loss', 'opacity_entropy', 'prototype_infonce', 'fruit_prototypes']
 
 
 def photometric_loss(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -17,6 +17,12 @@ def semantic_loss(fruit_prob: torch.Tensor, is_fruit: torch.Tensor) -> torch.Ten
     """Binary cross-entropy of rendered fruit probabilities [N] in [0, 1] against fruit masks [N] (bool)."""
     prob = fruit_prob.float().clamp(1e-5, 1.0 - 1e-5)
     return F.binary_cross_entropy(prob, is_fruit.float())
+
+
+def opacity_entropy(opacity: torch.Tensor, eps: float = 1e-4) -> torch.Tensor:
+    """Mean binary entropy (nats) of per-ray opacities [N]: 0 where a ray is opaque or clear, ln 2 at one half."""
+    o = opacity.float().clamp(eps, 1.0 - eps)
+    return -(o * torch.log(o) + (1.0 - o) * torch.log(1.0 - o)).mean()
 
 
 def fruit_prototypes(embeddings: torch.Tensor, labels: torch.Tensor, num_fruits: int) -> torch.Tensor:

@@ -20,6 +20,7 @@ from fruitnerfpp_ros.core.data.dataset import SceneDataset
 from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler
 from fruitnerfpp_ros.core.progress import Phase
 from fruitnerfpp_ros.core.training.config import TrainConfig
+from fruitnerfpp_ros.core.training.losses import opacity_entropy
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 
 __all__ = ['ParamGroup', 'StepLosses', 'TrainingStage', 'GeometryStage', 'SemanticStage', 'InstanceStage',
@@ -129,6 +130,11 @@ class GeometryStage:
         if weight > 0 and out.distortion is not None:
             total = total + weight * out.distortion
             logged['distortion'] = out.distortion.detach()
+        entropy_weight = self.config.geometry.opacity_entropy_weight
+        if entropy_weight > 0:
+            entropy = opacity_entropy(out.opacity[:n_uniform])
+            total = total + entropy_weight * entropy
+            logged['opacity_entropy'] = entropy.detach()
         if target is not None:
             depth = model.depth_loss(out, target)
             total = total + self.config.depth.weight * depth

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from fruitnerfpp_ros.core.training.losses import photometric_loss, prototype_infonce, semantic_loss
+from fruitnerfpp_ros.core.training.losses import opacity_entropy, photometric_loss, prototype_infonce, semantic_loss
 
 
 def test_bce_of_three_pixels() -> None:
@@ -15,6 +15,14 @@ def test_bce_of_three_pixels() -> None:
     fruit = torch.tensor([True, False, False])
     expected = -(math.log(0.9) + math.log(0.8) + math.log(0.4)) / 3
     assert float(semantic_loss(prob, fruit)) == pytest.approx(expected, rel=1e-6)
+
+
+def test_opacity_entropy_of_three_rays_and_its_pull_towards_clear_or_opaque() -> None:
+    opacity = torch.tensor([0.5, 1.0, 0.0])
+    assert float(opacity_entropy(opacity)) == pytest.approx(math.log(2) / 3, abs=2e-3)  # 0 and 1 clamped by 1e-4
+    semi = torch.tensor([0.3, 0.8], requires_grad=True)
+    opacity_entropy(semi).backward()
+    assert float(semi.grad[0]) > 0 and float(semi.grad[1]) < 0  # descent: 0.3 -> clear, 0.8 -> opaque
 
 
 def test_photometric_mse_of_three_pixels() -> None:

@@ -156,3 +156,13 @@ def test_distortion_loss_covers_the_uniform_rays_only(parts: tuple) -> None:
     alone = model.render(head, jitter[:n_uniform]).distortion.item()
     assert full == pytest.approx(alone, rel=1e-5)
     assert model.render(pixels, jitter).distortion.item() != pytest.approx(alone, rel=1e-5)
+
+
+def test_opacity_entropy_is_logged_and_weighted_only_when_asked(parts: tuple) -> None:
+    dataset, model, stages = parts
+    off = stages[0].losses(model, torch.Generator().manual_seed(3))
+    assert 'opacity_entropy' not in off.logged
+    weighted = replace_nested(REFINED, {'geometry': {'opacity_entropy_weight': 0.5}})
+    on = build_stages(weighted, dataset)[0].losses(model, torch.Generator().manual_seed(3))
+    expected = off.total + 0.5 * on.logged['opacity_entropy']
+    assert float(on.total) == pytest.approx(float(expected), rel=1e-4)
