@@ -91,19 +91,17 @@ def far_sample_distances(t_exit: torch.Tensor, samples: int, jitter: torch.Tenso
 
 
 class FarField(nn.Module):
-    """Density (1/m) and colour of the world beyond the box ``aabb`` [2, 3] (buffer shared with the box field)."""
+    """Density (1/m) and colour of the world beyond the scene box, at points given in box coordinates."""
 
-    def __init__(self, config: FarFieldConfig, aabb: torch.Tensor, generator: torch.Generator | None = None) -> None:
+    def __init__(self, config: FarFieldConfig, generator: torch.Generator | None = None) -> None:
         super().__init__()
         self.config = config
-        self.register_buffer('aabb', aabb.clone().float())
         grid = HashGridConfig(num_levels=config.num_levels, log2_table_size=config.log2_table_size)
         self.encoding = HashGridEncoding(grid, config.base_resolution, config.max_resolution, generator=generator)
         self.mlp = make_mlp(self.encoding.output_dim, config.hidden_dim, 1, 4)
         init_mlp(self.mlp, generator)
 
-    def forward(self, xyz: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """Density [N] (1/m) and colour [N, 3] at world points [N, 3]."""
-        u = 2.0 * (xyz - self.aabb[0]) / (self.aabb[1] - self.aabb[0]) - 1.0
-        out = self.mlp(self.encoding((contract(u) + 2.0) / 4.0)).float()
+    def forward(self, box_coords: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Density [N] (1/m) and colour [N, 3] at points [N, 3] in box coordinates ([-1, 1]^3 is the box)."""
+        out = self.mlp(self.encoding((contract(box_coords) + 2.0) / 4.0)).float()
         return trunc_exp(out[:, 0]), torch.sigmoid(out[:, 1:])

@@ -125,7 +125,7 @@ class FruitField(nn.Module):
             if c.density_bias is not None:
                 self.density_mlp[-1].bias[0].fill_(c.density_bias)
         # created last: the other modules draw the same initial weights with and without it
-        self.far = FarField(c.far_field, self.aabb, generator) if c.far_field.enabled else None
+        self.far = FarField(c.far_field, generator) if c.far_field.enabled else None
 
     # -- parameter groups of the cascaded schedule ------------------------------------------------------------
     def geometry_parameters(self) -> Iterator[nn.Parameter]:
@@ -189,7 +189,7 @@ class FruitField(nn.Module):
         # them by metres; the camera poses are refined from the box alone
         t, length = far_sample_distances(t_exit.detach(), self.far.config.samples, jitter)
         points = rays.origins.detach()[:, None, :] + t[..., None] * rays.directions.detach()[:, None, :]
-        density, colour = self.far(points.reshape(-1, 3))
+        density, colour = self.far(2.0 * self.normalize(points.reshape(-1, 3)) - 1.0)
         # optical depth per interval capped where it is opaque anyway (the unbounded last one would overflow)
         tau = (density.view(t.shape) * length).clamp(max=_OPAQUE_TAU)
         before = torch.cumsum(tau, dim=1) - tau
