@@ -88,7 +88,7 @@ def _early_terminated(samples: RaySamples, geometry: GeometryFn, stop_transmitta
 def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, settings: RenderSettings, *,
                 jitter: torch.Tensor | None = None, colour: bool = True, semantic: bool = False,
                 instance: bool = False, geometry_fn: GeometryFn | None = None,
-                distortion_rays: int | None = None, depth: bool = False,
+                distortion_rays: int | None = None, far_field_rays: int | None = None, depth: bool = False,
                 depth_target: DepthTarget | None = None) -> RenderOutput:
     """Volume-render ``rays`` through the field.
 
@@ -111,6 +111,8 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
         geometry_fn: replacement for ``field.geometry`` (e.g. a compiled version).
         distortion_rays: the distortion loss covers rays ``0..distortion_rays-1`` only (the uniformly drawn part of a
             training batch); None = every ray.
+        far_field_rays: only rays ``0..far_field_rays-1`` see the far field behind the box; the others see the
+            background colour there (rays known to end in the box: a fruit pixel's); None = every ray.
         depth: also return each ray's median termination distance.
         depth_target: measured depths of the rays: return their line-of-sight split of the weights (``colour``
             rendering only, as it trains density).
@@ -142,7 +144,8 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
             opacity = accumulation(samples, weights)
             values = field.rgb(_take(geo.features, inference_at), _take(samples.directions, inference_at))
             rgb = _composite_at(samples, weights, inference_at, values)
-            rgb = rgb + (1.0 - opacity[:, None]) * _beyond_box(field, grid, rays, opacity, settings, jitter)
+            rgb = rgb + (1.0 - opacity[:, None]) * _beyond_box(field, grid, rays, opacity, settings, jitter,
+                                                               far_field_rays)
         else:
             opacity = accumulation(samples, weights.detach())
         if semantic:
@@ -157,9 +160,17 @@ def render_rays(field: FruitField, grid: OccupancyGrid, rays: RayBundle, setting
 
 
 def _beyond_box(field: FruitField, grid: OccupancyGrid, rays: RayBundle, opacity: torch.Tensor,
-                settings: RenderSettings, jitter: torch.Tensor | None) -> torch.Tensor:
+                settings: RenderSettings, jitter: torch.Tensor | None, far_field_rays: int | None = None
+                ) -> torch.Tensor:
     """[N, 3] what each ray sees behind the box (:meth:`FruitField.beyond_box_rgb`); without autograd only for the
-    rays whose transmittance through the box is above ``settings.stop_transmittance`` (zero for the others)."""
+    rays whose transmittance through the box is above ``settings.stop_transmittance`` (zero for the others). Rays
+    from ``far_field_rays`` on see the background colour alone."""
+    if far_field_rays is not None and far_field_rays < len(rays.origins):
+        head = RayBundle(rays.origins[:far_field_rays], rays.directions[:far_field_rays])
+        tail = field.background_rgb(rays.directions[far_field_rays:])
+        front = _beyond_box(field, grid, head, opacity[:far_field_rays], settings,
+                            None if jitter is None else jitter[:far_field_rays])
+        return torch.cat([front, tail.to(front.dtype)])
     _, t_exit = intersect_aabb(rays, grid.aabb, settings.near)
     t_exit = t_exit.clamp_min(max(settings.near, 1e-3))  # a ray that misses the box: from ``near`` on
     if torch.is_grad_enabled():

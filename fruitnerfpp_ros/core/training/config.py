@@ -45,6 +45,10 @@ class DataConfig:
     """Across (x, y) the camera-derived box is cut to the fruit region (where the fruit masks of many views agree,
     see ``scale``) and the cameras, grown by this margin (m); its height is kept (training/scene_box.py). None keeps
     the whole camera-derived box."""
+    box_around: str = 'fruit_and_cameras'
+    """What the cut box holds: ``fruit_and_cameras`` (the fruit region and the cameras across (x, y), the camera
+    box's full height) or ``fruit`` (the fruit region alone on every axis: the cameras, the ground and what lies
+    past the tree are left to the far field, ``field.far_field``)."""
     min_fruit_pixels: int = 4
     """Fruit masks with fewer pixels are ignored by the group sampler."""
 
@@ -119,6 +123,16 @@ class GeometryStageConfig(StageSchedule):
     """Weight of the distortion loss (1/m): pulls each ray's weight together, against floaters and fog. Computed on
     the same uniformly drawn rays as the photometric loss (in stage 2 the fruit-biased rays train the semantic
     head only)."""
+    fruit_fraction: float = 0.2
+    """Share of each batch drawn from fruit pixels (the rest uniformly); their colour trains density and colour
+    like the uniform rays' (the distortion, opacity-entropy and depth losses stay on the uniform part). Fruit is
+    under 1 % of a row drive's pixels: with uniform batches alone each fruit pixel trained the density about once
+    and the fruit surfaces came out 0.1-0.4 m off (docs/results/accuracy_suite.md). 0 = uniform batches."""
+    fruit_rays_far_field: bool = False
+    """Whether the fruit-drawn rays see the far field behind the box. False (default): they see the background
+    colour there, so their fruit colour must come from inside the box, where the fruit region lies; with True the
+    far field learned to paint the fruit behind a semi-transparent crown (lemon: 40 % of the fruit rays stayed
+    below half opacity)."""
     opacity_entropy_weight: float = 0.0
     """Weight of the binary entropy of each uniform ray's opacity through the box: pushes a ray to either end in
     the box or pass it for the far field, not both (a semi-transparent tree with the far field seen through it).
@@ -275,8 +289,13 @@ class TrainConfig:
         for name in ('geometry', 'semantic', 'instance'):
             if getattr(self, name).iterations < 0:
                 raise ConfigError(f'{name}.iterations must be >= 0')
+        for name in ('geometry', 'semantic'):
+            if not 0.0 <= getattr(self, name).fruit_fraction < 1.0:
+                raise ConfigError(f'{name}.fruit_fraction must lie in [0, 1)')
         if self.checkpoint_every <= 0 or self.log_every <= 0:
             raise ConfigError('checkpoint_every and log_every must be positive')
+        if self.data.box_around not in ('fruit', 'fruit_and_cameras'):
+            raise ConfigError(f"data.box_around must be 'fruit' or 'fruit_and_cameras', got {self.data.box_around!r}")
         if self.data.aabb is not None and len(self.data.aabb) != 6:
             raise ConfigError('data.aabb needs 6 numbers: xmin ymin zmin xmax ymax zmax')
 

@@ -160,12 +160,13 @@ class FruitNeRFModel(nn.Module):
         return rays_for_pixels(self.current_poses(), self.intrinsics, view, row, col)
 
     def render(self, pixels: PixelBatch, jitter: torch.Tensor, *, colour: bool = True, semantic: bool = False,
-               instance: bool = False, distortion_rays: int | None = None,
+               instance: bool = False, distortion_rays: int | None = None, far_field_rays: int | None = None,
                depth_target: DepthTarget | None = None) -> RenderOutput:
         """Render the rays of ``pixels`` with first-sample offsets ``jitter`` [N] in [0, 1)."""
         return render_rays(self.field, self.grid, self.rays(pixels), self.settings, jitter=jitter.to(self.device),
                            colour=colour, semantic=semantic, instance=instance, geometry_fn=self.geometry_fn,
-                           distortion_rays=distortion_rays, depth_target=depth_target)
+                           distortion_rays=distortion_rays, far_field_rays=far_field_rays,
+                           depth_target=depth_target)
 
     def depth_target(self, pixels: PixelBatch, num_rays: int) -> DepthTarget | None:
         """Measured depths of the first ``num_rays`` rays of ``pixels`` (the uniformly drawn part), or None when

@@ -32,13 +32,16 @@ def measure_scene(dataset: SceneDataset, config: TrainConfig, device: torch.devi
 
 def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
                     camera_centres: np.ndarray | None = None) -> np.ndarray:
-    """``config.data.aabb`` when set; else the cameras' box, cut across (x, y) to the fruit region and the cameras.
+    """``config.data.aabb`` when set; else the cameras' box, cut to the fruit region (``data.box_around``).
 
-    The box holds the cameras and the fruit region with ``box_margin_m`` to spare, and keeps the camera box's full
-    height (the ground under the tree stays in). It must reach past the cameras: a view sees ground and sky beyond
-    the tree, and what a box cannot hold behind the tree is painted on its far face, which, unless it lies behind
-    the cameras on the other side of the tree, stands in front of their views (a robot row with the box cut 0.5 m
-    from the fruit: held-out PSNR 16 dB; with the far faces behind the other side's cameras: 22 dB).
+    ``box_around: fruit`` cuts every axis to the fruit region grown by ``box_margin_m``: the cameras, the ground and
+    everything past the tree are the far field's (``field.far_field``), which needs no box face to paint them on.
+    ``fruit_and_cameras`` (the box before the far field existed) holds the cameras and the fruit region with
+    ``box_margin_m`` to spare across (x, y) and keeps the camera box's full height (the ground under the tree stays
+    in). Without a far field a box must reach past the cameras: a view sees ground and sky beyond the tree, and what
+    a box cannot hold behind the tree is painted on its far face, which, unless it lies behind the cameras on the
+    other side of the tree, stands in front of their views (a robot row with the box cut 0.5 m from the fruit:
+    held-out PSNR 16 dB; with the far faces behind the other side's cameras: 22 dB).
 
     Raises:
         DatasetError: an explicit box with max <= min on an axis, or a cut that leaves nothing.
@@ -53,13 +56,13 @@ def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
     if margin is None or scale.fruit_region is None:
         return box
     region = scale.fruit_region
-    if camera_centres is not None and len(camera_centres):
-        lo = np.minimum(region[0], camera_centres.min(0)) - margin
-        hi = np.maximum(region[1], camera_centres.max(0)) + margin
-    else:
-        lo, hi = region[0] - margin, region[1] + margin
-    box[0, :2] = np.maximum(box[0, :2], lo[:2])
-    box[1, :2] = np.minimum(box[1, :2], hi[:2])
+    if config.data.box_around == 'fruit':  # every axis; the far field holds the rest
+        box = np.stack([np.maximum(box[0], region[0] - margin), np.minimum(box[1], region[1] + margin)])
+    else:  # across (x, y) only, holding the cameras too
+        held = region if camera_centres is None or not len(camera_centres) else np.stack(
+            [np.minimum(region[0], camera_centres.min(0)), np.maximum(region[1], camera_centres.max(0))])
+        box[0, :2] = np.maximum(box[0, :2], held[0, :2] - margin)
+        box[1, :2] = np.minimum(box[1, :2], held[1, :2] + margin)
     if not np.all(box[1] > box[0]):
         raise DatasetError(f'the fruit region {np.round(region, 3).tolist()} lies outside the cameras\' box '
                            f'{np.round(cameras, 3).tolist()}: check the poses\' frame and the masks')

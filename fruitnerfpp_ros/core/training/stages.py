@@ -96,6 +96,8 @@ class GeometryStage:
         self.iterations = config.geometry.iterations
         self.batch_rays = config.geometry.batch_rays
         self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
+                                           fruit_masks=dataset.semantic_masks,
+                                           fruit_fraction=config.geometry.fruit_fraction,
                                            valid_masks=dataset.valid_masks)
 
     @property
@@ -122,9 +124,10 @@ class GeometryStage:
         jitter = torch.rand(len(pixels.view), generator=generator)
         n_uniform = self.sampler.num_uniform(len(pixels.view))
         target = model.depth_target(pixels, n_uniform)
+        far_rays = None if semantic or self.config.geometry.fruit_rays_far_field else n_uniform
         out = model.render(pixels, jitter, colour=True, semantic=semantic, distortion_rays=n_uniform,
-                           depth_target=target)
-        photo = model.photometric_loss(out, pixels, n_uniform)
+                           far_field_rays=far_rays, depth_target=target)
+        photo = model.photometric_loss(out, pixels, n_uniform if semantic else len(pixels.view))
         total, logged = photo, {'photo': photo.detach()}
         weight = self.config.geometry.distortion_weight
         if weight > 0 and out.distortion is not None:

@@ -150,3 +150,17 @@ def test_far_field_config_is_checked() -> None:
         FarFieldConfig(samples=-1)
     with pytest.raises(ConfigError, match='base_resolution'):
         FarFieldConfig(base_resolution=64, max_resolution=32)
+
+
+@pytest.mark.parametrize('autograd', [False, True])
+def test_rays_past_far_field_rays_see_the_background_behind_the_box(autograd: bool) -> None:
+    grid = OccupancyGrid(AABB, resolution=8, threshold=0.01, decay=0.95)
+    rays = _outward_rays()
+    field = _empty_box_field(SMALL)
+    with torch.set_grad_enabled(autograd):
+        every = render_rays(field, grid, rays, SETTINGS).rgb
+        split = render_rays(field, grid, rays, SETTINGS, far_field_rays=20).rgb
+    background = field.background_rgb(rays.directions[20:])
+    assert torch.allclose(split[:20], every[:20], atol=1e-5)
+    assert torch.allclose(split[20:], background, atol=1e-3)
+    assert not torch.allclose(every[20:], background, atol=0.1)  # the far field (red) there when all rays see it

@@ -9,7 +9,7 @@ from fruitnerfpp_ros.core.config_io import replace_nested
 from fruitnerfpp_ros.core.data.scene_scale import SceneScale
 from fruitnerfpp_ros.core.training import TrainConfig
 from fruitnerfpp_ros.core.training.scene_box import build_scene_box
-from fruitnerfpp_ros.errors import DatasetError
+from fruitnerfpp_ros.errors import ConfigError, DatasetError
 
 CAMERA_BOX = np.array([[-4.0, -4.0, -1.0], [4.0, 4.0, 3.0]])
 REGION = np.array([[-0.5, -0.4, 0.5], [0.5, 0.4, 1.3]])
@@ -34,3 +34,14 @@ def test_explicit_and_uncut_boxes() -> None:
     far = SceneScale(0.07, 'masks', REGION + 20.0, 10, 10)
     with pytest.raises(DatasetError, match='outside the cameras'):
         build_scene_box(TrainConfig(), CAMERA_BOX, far)
+
+
+def test_a_box_around_the_fruit_is_cut_on_every_axis_and_leaves_the_cameras_out() -> None:
+    cameras = np.array([[x, side * 2.0, 1.2] for x in np.linspace(-1.5, 1.5, 7) for side in (-1, 1)])
+    config = replace_nested(TrainConfig(), {'data': {'box_around': 'fruit', 'box_margin_m': 0.3}})
+    box = build_scene_box(config, CAMERA_BOX, SCALE, cameras)
+    np.testing.assert_allclose(box, [[-0.8, -0.7, 0.2], [0.8, 0.7, 1.6]])   # the fruit region +- 0.3 m
+    wide = SceneScale(0.075, 'masks', np.array([[-6.0, -0.4, -3.0], [0.5, 0.4, 1.3]]), 500, 300)
+    np.testing.assert_allclose(build_scene_box(config, CAMERA_BOX, wide, cameras)[0], [-4.0, -0.7, -1.0])
+    with pytest.raises(ConfigError, match='box_around'):
+        replace_nested(TrainConfig(), {'data': {'box_around': 'trees'}})

@@ -166,3 +166,46 @@ def test_opacity_entropy_is_logged_and_weighted_only_when_asked(parts: tuple) ->
     on = build_stages(weighted, dataset)[0].losses(model, torch.Generator().manual_seed(3))
     expected = off.total + 0.5 * on.logged['opacity_entropy']
     assert float(on.total) == pytest.approx(float(expected), rel=1e-4)
+
+
+def test_geometry_fruit_share_is_drawn_from_fruit_pixels_and_trains_colour(parts: tuple) -> None:
+    dataset, model, stages = parts
+    assert stages[0].sampler.num_uniform(400) == 320  # the default share, 0.2
+    uniform = build_stages(replace_nested(REFINED, {'geometry': {'fruit_fraction': 0.0}}), dataset)[0]
+    assert uniform.sampler.num_uniform(400) == 400
+    biased = build_stages(replace_nested(REFINED, {'geometry': {'fruit_fraction': 0.25}}), dataset)[0]
+    assert biased.sampler.num_uniform(400) == 300
+    generator = torch.Generator().manual_seed(11)
+    pixels = biased.sampler.sample(biased.batch_rays, generator)
+    jitter = torch.rand(len(pixels.view), generator=generator)
+    n_uniform = biased.sampler.num_uniform(len(pixels.view))
+    assert bool(dataset.semantic_masks[pixels.view, pixels.row, pixels.col][n_uniform:].all())
+    with torch.no_grad():
+        out = model.render(pixels, jitter, colour=True, far_field_rays=n_uniform)  # fruit rays: no far field
+        every_ray = float(model.photometric_loss(out, pixels, len(pixels.view)))
+        uniform_only = float(model.photometric_loss(out, pixels, n_uniform))
+        logged = float(biased.losses(model, torch.Generator().manual_seed(11)).logged['photo'])
+    assert logged == pytest.approx(every_ray, rel=1e-4)
+    assert logged != pytest.approx(uniform_only, rel=1e-4)
+
+
+def test_fruit_fraction_outside_zero_to_one_is_refused() -> None:
+    from fruitnerfpp_ros.errors import ConfigError
+    for stage, value in (('geometry', 1.0), ('geometry', -0.1), ('semantic', 1.5)):
+        with pytest.raises(ConfigError, match=f'{stage}.fruit_fraction'):
+            replace_nested(MICRO, {stage: {'fruit_fraction': value}})
+
+
+@pytest.mark.parametrize('see_far_field', [True, False])
+def test_fruit_rays_see_the_far_field_only_when_asked(parts: tuple, see_far_field: bool,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    dataset, model, _ = parts
+    config = replace_nested(REFINED, {'geometry': {'fruit_fraction': 0.25, 'fruit_rays_far_field': see_far_field}})
+    geometry, semantic = build_stages(config, dataset)[:2]
+    seen: list = []
+    render = model.render
+    monkeypatch.setattr(model, 'render', lambda *a, **k: seen.append(k.get('far_field_rays')) or render(*a, **k))
+    geometry.losses(model, torch.Generator().manual_seed(2))
+    semantic.losses(model, torch.Generator().manual_seed(2))
+    n_uniform = geometry.sampler.num_uniform(geometry.batch_rays)
+    assert seen == [None if see_far_field else n_uniform, None]  # stage 2's fruit rays train no colour
