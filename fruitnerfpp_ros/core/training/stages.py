@@ -86,18 +86,19 @@ class TrainingStage(Protocol):
 
 
 class GeometryStage:
-    """Stage 1: photometric + distortion loss on uniform rays; density, colour and pose corrections train."""
+    """Stage 1: photometric + distortion loss on uniform rays plus a share of fruit-pixel rays (their colour only,
+    behind the box the background); density, colour and pose corrections train."""
 
     name: ClassVar[str] = 'geometry'
     updates_occupancy = True
 
     def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
+        stage = getattr(config, self.name)  # this stage's section: iterations, batch_rays, fruit_fraction
         self.config = config
-        self.iterations = config.geometry.iterations
-        self.batch_rays = config.geometry.batch_rays
+        self.iterations = stage.iterations
+        self.batch_rays = stage.batch_rays
         self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
-                                           fruit_masks=dataset.semantic_masks,
-                                           fruit_fraction=config.geometry.fruit_fraction,
+                                           fruit_masks=dataset.semantic_masks, fruit_fraction=stage.fruit_fraction,
                                            valid_masks=dataset.valid_masks)
 
     @property
@@ -151,18 +152,9 @@ class GeometryStage:
 
 
 class SemanticStage(GeometryStage):
-    """Stage 2: stage 1's losses on the uniform rays plus fruit BCE on every ray (uniform and fruit-biased)."""
+    """Stage 2: stage 1's losses on its uniform rays only, plus fruit BCE on every ray (uniform and fruit-biased)."""
 
     name: ClassVar[str] = 'semantic'
-
-    def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
-        self.config = config
-        self.iterations = config.semantic.iterations
-        self.batch_rays = config.semantic.batch_rays
-        self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
-                                           fruit_masks=dataset.semantic_masks,
-                                           fruit_fraction=config.semantic.fruit_fraction,
-                                           valid_masks=dataset.valid_masks)
 
     def param_groups(self, model: FruitNeRFModel) -> list[ParamGroup]:
         s = self.config.semantic
