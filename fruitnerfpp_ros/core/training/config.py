@@ -42,9 +42,9 @@ class DataConfig:
     aabb_padding: float = 0.05
     """Derived box grown by this fraction of its largest side on every face."""
     box_margin_m: float | None = 0.5
-    """Across (x, y) the camera-derived box is cut to the fruit region (where the fruit masks of many views agree,
-    see ``scale``) and the cameras, grown by this margin (m); its height is kept (training/scene_box.py). None keeps
-    the whole camera-derived box."""
+    """The camera-derived box is cut to the fruit region (where the fruit masks of many views agree, see ``scale``),
+    and to the cameras unless ``box_around`` is ``fruit``, grown by this margin (m) (training/scene_box.py). None
+    keeps the whole camera-derived box."""
     box_around: str = 'fruit_and_cameras'
     """What the cut box holds: ``fruit_and_cameras`` (the fruit region and the cameras across (x, y), the camera
     box's full height) or ``fruit`` (the fruit region alone on every axis: the cameras, the ground and what lies
@@ -121,8 +121,8 @@ class GeometryStageConfig(StageSchedule):
     """Rays per step."""
     distortion_weight: float = 0.01
     """Weight of the distortion loss (1/m): pulls each ray's weight together, against floaters and fog. Computed on
-    the same uniformly drawn rays as the photometric loss (in stage 2 the fruit-biased rays train the semantic
-    head only)."""
+    the uniformly drawn rays only (stage 1's fruit-pixel rays train the photometric loss; in stage 2 the
+    fruit-biased rays train the semantic head only)."""
     fruit_fraction: float = 0.2
     """Share of each batch drawn from fruit pixels (the rest uniformly); their colour trains density and colour
     like the uniform rays' (the distortion, opacity-entropy and depth losses stay on the uniform part). Fruit is

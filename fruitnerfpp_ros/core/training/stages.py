@@ -91,6 +91,8 @@ class GeometryStage:
 
     name: ClassVar[str] = 'geometry'
     updates_occupancy = True
+    fruit_rays_train_colour: ClassVar[bool] = True
+    """The fruit-drawn rays train the photometric loss (stage 1), or only the semantic head (stage 2)."""
 
     def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
         stage = getattr(config, self.name)  # this stage's section: iterations, batch_rays, fruit_fraction
@@ -125,10 +127,12 @@ class GeometryStage:
         jitter = torch.rand(len(pixels.view), generator=generator)
         n_uniform = self.sampler.num_uniform(len(pixels.view))
         target = model.depth_target(pixels, n_uniform)
-        far_rays = None if semantic or self.config.geometry.fruit_rays_far_field else n_uniform
+        colour_rays = len(pixels.view) if self.fruit_rays_train_colour else n_uniform
+        far_rays = n_uniform if self.fruit_rays_train_colour and not self.config.geometry.fruit_rays_far_field \
+            else None
         out = model.render(pixels, jitter, colour=True, semantic=semantic, distortion_rays=n_uniform,
                            far_field_rays=far_rays, depth_target=target)
-        photo = model.photometric_loss(out, pixels, n_uniform if semantic else len(pixels.view))
+        photo = model.photometric_loss(out, pixels, colour_rays)
         total, logged = photo, {'photo': photo.detach()}
         weight = self.config.geometry.distortion_weight
         if weight > 0 and out.distortion is not None:
@@ -155,6 +159,7 @@ class SemanticStage(GeometryStage):
     """Stage 2: stage 1's losses on its uniform rays only, plus fruit BCE on every ray (uniform and fruit-biased)."""
 
     name: ClassVar[str] = 'semantic'
+    fruit_rays_train_colour: ClassVar[bool] = False
 
     def param_groups(self, model: FruitNeRFModel) -> list[ParamGroup]:
         s = self.config.semantic
