@@ -1,4 +1,5 @@
-"""The scene box: the cameras' box cut across to the fruit region and the cameras, its height kept."""
+"""The scene box: the cameras' box cut to the fruit region on every axis (default), or across to the fruit region
+and the cameras with its height kept (``box_around: fruit_and_cameras``)."""
 
 from __future__ import annotations
 
@@ -16,9 +17,10 @@ REGION = np.array([[-0.5, -0.4, 0.5], [0.5, 0.4, 1.3]])
 SCALE = SceneScale(0.075, 'masks', REGION, 500, 300)
 
 
-def test_the_box_reaches_past_the_cameras_on_both_sides_of_a_row() -> None:
+def test_a_box_around_fruit_and_cameras_reaches_past_the_cameras_on_both_sides_of_a_row() -> None:
     cameras = np.array([[x, side * 2.0, 1.2] for x in np.linspace(-1.5, 1.5, 7) for side in (-1, 1)])
-    box = build_scene_box(TrainConfig(), CAMERA_BOX, SCALE, cameras)
+    config = replace_nested(TrainConfig(), {'data': {'box_around': 'fruit_and_cameras'}})
+    box = build_scene_box(config, CAMERA_BOX, SCALE, cameras)
     np.testing.assert_allclose(box[:, :2], [[-2.0, -2.5], [2.0, 2.5]])       # cameras +- 0.5 m across
     np.testing.assert_allclose(box[:, 2], CAMERA_BOX[:, 2])                  # the ground stays in
     assert np.all(box[0, :2] < cameras.min(0)[:2]) and np.all(box[1, :2] > cameras.max(0)[:2])
@@ -38,9 +40,12 @@ def test_explicit_and_uncut_boxes() -> None:
 
 def test_a_box_around_the_fruit_is_cut_on_every_axis_and_leaves_the_cameras_out() -> None:
     cameras = np.array([[x, side * 2.0, 1.2] for x in np.linspace(-1.5, 1.5, 7) for side in (-1, 1)])
-    config = replace_nested(TrainConfig(), {'data': {'box_around': 'fruit', 'box_margin_m': 0.3}})
+    config = replace_nested(TrainConfig(), {'data': {'box_margin_m': 0.3}})      # box_around: fruit, the default
     box = build_scene_box(config, CAMERA_BOX, SCALE, cameras)
     np.testing.assert_allclose(box, [[-0.8, -0.7, 0.2], [0.8, 0.7, 1.6]])   # the fruit region +- 0.3 m
+    for name in ('tiny', 'cpu', 'default', 'paper'):                          # every preset, the far field too
+        preset = TrainConfig.preset(name)
+        assert preset.data.box_around == 'fruit' and preset.field.far_field.samples > 0
     wide = SceneScale(0.075, 'masks', np.array([[-6.0, -0.4, -3.0], [0.5, 0.4, 1.3]]), 500, 300)
     np.testing.assert_allclose(build_scene_box(config, CAMERA_BOX, wide, cameras)[0], [-4.0, -0.7, -1.0])
     with pytest.raises(ConfigError, match='box_around'):
