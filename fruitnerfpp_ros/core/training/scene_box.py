@@ -37,12 +37,12 @@ def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
     ``box_around: fruit`` (the default) cuts every axis to the fruit region grown by ``box_margin_m``: the cameras,
     the ground and everything past the tree are the far field's (``field.far_field``), which needs no box face to
     paint them on, and the hash grids spend their cells on the tree alone (the suite: 2-4x faster, better counts on
-    most scenes). ``fruit_and_cameras`` (the box before the far field existed) holds the cameras and the fruit region with
-    ``box_margin_m`` to spare across (x, y) and keeps the camera box's full height (the ground under the tree stays
-    in). Without a far field a box must reach past the cameras: a view sees ground and sky beyond the tree, and what
-    a box cannot hold behind the tree is painted on its far face, which, unless it lies behind the cameras on the
-    other side of the tree, stands in front of their views (a robot row with the box cut 0.5 m from the fruit:
-    held-out PSNR 16 dB; with the far faces behind the other side's cameras: 22 dB).
+    most scenes). ``fruit_and_cameras`` (the box before the far field existed) holds the cameras and the fruit
+    region with ``box_margin_m`` to spare across (x, y) and keeps the camera box's full height (the ground under
+    the tree stays in). Without a far field a box must reach past the cameras: a view sees ground and sky beyond
+    the tree, and what a box cannot hold behind the tree is painted on its far face, which, unless it lies behind
+    the cameras on the other side of the tree, stands in front of their views (a robot row with the box cut 0.5 m
+    from the fruit: held-out PSNR 16 dB; with the far faces behind the other side's cameras: 22 dB).
 
     Raises:
         DatasetError: an explicit box with max <= min on an axis, or a cut that leaves nothing.
