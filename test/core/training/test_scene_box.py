@@ -8,6 +8,7 @@ import pytest
 
 from fruitnerfpp_ros.core.config_io import replace_nested
 from fruitnerfpp_ros.core.data.scene_scale import SceneScale
+from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
 from fruitnerfpp_ros.core.training import TrainConfig
 from fruitnerfpp_ros.core.training.scene_box import build_scene_box
 from fruitnerfpp_ros.errors import ConfigError, DatasetError
@@ -43,7 +44,7 @@ def test_a_box_around_the_fruit_is_cut_on_every_axis_and_leaves_the_cameras_out(
     config = replace_nested(TrainConfig(), {'data': {'box_margin_m': 0.3}})      # box_around: fruit, the default
     box = build_scene_box(config, CAMERA_BOX, SCALE, cameras)
     np.testing.assert_allclose(box, [[-0.8, -0.7, 0.2], [0.8, 0.7, 1.6]])   # the fruit region +- 0.3 m
-    for name in ('tiny', 'cpu', 'default', 'paper'):                          # every preset, the far field too
+    for name in PRESET_NAMES:                                                 # every preset, the far field too
         preset = TrainConfig.preset(name)
         assert preset.data.box_around == 'fruit' and preset.field.far_field.samples > 0
     wide = SceneScale(0.075, 'masks', np.array([[-6.0, -0.4, -3.0], [0.5, 0.4, 1.3]]), 500, 300)
