@@ -299,6 +299,9 @@ class TrainConfig:
             raise ConfigError('checkpoint_every and log_every must be positive')
         if self.data.box_around not in ('fruit', 'fruit_and_cameras'):
             raise ConfigError(f"data.box_around must be 'fruit' or 'fruit_and_cameras', got {self.data.box_around!r}")
+        if self.data.box_around == 'fruit' and self.data.aabb is None and not self.field.far_field.enabled:
+            raise ConfigError("data.box_around 'fruit' leaves the ground and what lies past the tree to the far field: "
+                              "field.far_field.samples must be > 0 (or data.box_around 'fruit_and_cameras')")
         if self.data.aabb is not None and len(self.data.aabb) != 6:
             raise ConfigError('data.aabb needs 6 numbers: xmin ymin zmin xmax ymax zmax')
 

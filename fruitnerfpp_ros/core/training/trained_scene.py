@@ -112,6 +112,8 @@ def load_trained_scene(run_dir: str | Path, device: str = 'auto') -> TrainedScen
     stored = dict(state['config'])
     if 'far_field' not in stored.get('field', {}):  # written before the far field existed: its field has none
         stored['field'] = {**stored.get('field', {}), 'far_field': {'samples': 0}}
+    if 'box_around' not in stored.get('data', {}):  # ... and before the box around the fruit: the box held the cameras
+        stored['data'] = {**stored.get('data', {}), 'box_around': 'fruit_and_cameras'}
     try:
         config = config_from_mapping(TrainConfig, stored)
     except Exception as err:

@@ -51,3 +51,8 @@ def test_a_box_around_the_fruit_is_cut_on_every_axis_and_leaves_the_cameras_out(
     np.testing.assert_allclose(build_scene_box(config, CAMERA_BOX, wide, cameras)[0], [-4.0, -0.7, -1.0])
     with pytest.raises(ConfigError, match='box_around'):
         replace_nested(TrainConfig(), {'data': {'box_around': 'trees'}})
+    with pytest.raises(ConfigError, match='far_field.samples'):  # the box around the fruit needs the far field
+        replace_nested(TrainConfig(), {'field': {'far_field': {'samples': 0}}})
+    for legal in ({'data': {'box_around': 'fruit_and_cameras'}}, {'data': {'aabb': [0, 0, 0, 1, 1, 1]}}):
+        config = replace_nested(TrainConfig(), {**legal, 'field': {'far_field': {'samples': 0}}})
+        assert not config.field.far_field.enabled
