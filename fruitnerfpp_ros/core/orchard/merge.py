@@ -1,8 +1,8 @@
 """One row count from the segments' counts: every fruit once, also where two segments overlap.
 
 Each segment's fruits count within its trusted stretch (:class:`~.segments.Segment`). Two neighbours' trusted
-stretches overlap around their cut; a fruit there is usually counted by both. Such pairs are matched one-to-one by
-3D distance (Hungarian; at most ``match_diameters`` fruit diameters apart) and kept once: the copy of the segment
+stretches overlap around their cut; a fruit there (or within the match reach of the overlap's ends) is usually
+counted by both. Such pairs are matched one-to-one by 3D distance (Hungarian; at most ``match_diameters`` fruit diameters apart) and kept once: the copy of the segment
 whose own stretch holds the pair (it saw the fruit from more central views). A fruit only one of them counted
 stays. Instance embeddings are not used for matching: each segment trains its own instance field, so the
 embeddings of two segments live in unrelated spaces.
@@ -102,10 +102,14 @@ def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequenc
     matched: dict[int, np.ndarray] = {k: np.zeros(len(done[k].centers), bool) for k in order}
     for k, k_next in zip(order[:-1], order[1:]):
         a_seg, b_seg = by_index[k], by_index[k_next]
-        lo, hi = b_seg.trust[0], a_seg.trust[1]
+        a, b = done[k], done[k_next]
+        # the overlap of the trusted stretches, grown by the match reach: the two copies of a fruit at its edge
+        # fall on both sides of it (3 of 8 double counts of a 5-tree row before)
+        reach = config.match_diameters * max(config.min_diameter_m, float(np.max(a.diameters, initial=0.0)),
+                                             float(np.max(b.diameters, initial=0.0)))
+        lo, hi = b_seg.trust[0] - reach, a_seg.trust[1] + reach
         if hi <= lo:
             continue
-        a, b = done[k], done[k_next]
         ia = np.flatnonzero(kept[k] & (along[k] >= lo) & (along[k] <= hi))
         ib = np.flatnonzero(kept[k_next] & (along[k_next] >= lo) & (along[k_next] <= hi))
         for pa, pb in _pairs(a.centers[ia], a.diameters[ia], b.centers[ib], b.diameters[ib], config):

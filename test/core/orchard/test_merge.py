@@ -53,3 +53,14 @@ def test_a_failed_segment_leaves_a_gap_and_the_rest_counts() -> None:
     assert len(row) == 2 and not row.matched.any()
     empty = merge_segments(FRAME, SEGMENTS, [None, None])
     assert len(empty) == 0 and empty.centers.shape == (0, 3)
+
+
+def test_the_copies_of_a_fruit_at_the_edge_of_the_overlap_are_counted_once() -> None:
+    """The trusted stretches overlap on 0.7..1.3; a fruit at an end of it has one copy inside and one just outside
+    (the segments place it a few millimetres apart): both trusted by their own segment, they are one fruit."""
+    a = _fruits(0, [[1.297, 0.0, 1.0], [0.696, 0.1, 1.0]])
+    b = _fruits(1, [[1.305, 0.0, 1.0], [0.703, 0.1, 1.0]])
+    row = merge_segments(FRAME, SEGMENTS, [a, b])
+    assert len(row) == 2 and row.matched.all()
+    far = merge_segments(FRAME, SEGMENTS, [a, _fruits(1, [[1.45, 0.0, 1.0]])])  # beyond the reach: another fruit
+    assert len(far) == 3 and not far.matched.any()
