@@ -2,10 +2,10 @@
 
 Each segment's fruits count within its trusted stretch (:class:`~.segments.Segment`). Two neighbours' trusted
 stretches overlap around their cut; a fruit there (or within the match reach of the overlap's ends) is usually
-counted by both. Such pairs are matched one-to-one by 3D distance (Hungarian; at most ``match_diameters`` fruit diameters apart) and kept once: the copy of the segment
-whose own stretch holds the pair (it saw the fruit from more central views). A fruit only one of them counted
-stays. Instance embeddings are not used for matching: each segment trains its own instance field, so the
-embeddings of two segments live in unrelated spaces.
+counted by both. Such pairs are matched one-to-one by 3D distance (Hungarian; at most ``match_diameters`` fruit
+diameters apart) and kept once: the copy of the segment whose own stretch holds the pair (it saw the fruit from
+more central views). A fruit only one of them counted stays. Instance embeddings are not used for matching: each
+segment trains its own instance field, so the embeddings of two segments live in unrelated spaces.
 """
 
 from __future__ import annotations
