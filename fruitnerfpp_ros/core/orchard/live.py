@@ -6,7 +6,9 @@ the camera). The row is cut into cells: one per tree of a planting map, else ``l
 is *passed* when the newest keyframe's view lies wholly beyond the cell's viewed stretch (core +- margin) in the
 driving direction: no further keyframe of this pass will see it. A passed cell whose keyframes show fruit is due
 (:meth:`LiveRow.due`); with ``retrain_on_return`` it is due again when the robot passes it on the way back (its
-keyframes then show both sides; the new count replaces the first). :meth:`LiveRow.flush` makes every cell with
+keyframes then show both sides; the new count replaces the first), also while its first request still waits for
+training (the new request replaces it: a CPU that trains slower than the robot drives trains each cell once, on
+both sides). :meth:`LiveRow.flush` makes every cell with
 keyframes not yet trained on due (the drive has ended). Results come back through :meth:`LiveRow.record`, and
 :meth:`LiveRow.result` joins the finished cells into the row's count (:func:`~.row_run.finish_row`).
 
@@ -186,19 +188,20 @@ class LiveRow:
         out = []
         for cell in sorted(self.cells.values(), key=lambda c: c.index):
             passed = lo > cell.core[1] + margin if direction > 0 else hi < cell.core[0] - margin
-            if passed and cell.state not in ('pending', 'training'):
+            if passed and cell.state != 'training':  # a pending cell's newer request replaces the waiting one
                 request = self._request(cell)
                 if request is not None:
                     out.append(request)
         return out
 
     def flush(self) -> list[SegmentRequest]:
-        """Every cell with keyframes it has not been trained on (the drive has ended)."""
+        """Every cell not training with keyframes it has not been asked for (the drive has ended); a pending
+        cell's request then replaces the one waiting (same segment, a higher version)."""
         if self.frame is None:
             return []
         out = []
         for cell in sorted(self.cells.values(), key=lambda c: c.index):
-            if cell.state in ('pending', 'training'):
+            if cell.state == 'training':  # asked again by a flush after it ends (the node flushes after each)
                 continue
             request = self._request(cell)
             if request is not None:

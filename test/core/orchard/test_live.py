@@ -74,3 +74,46 @@ def test_a_failed_retraining_keeps_the_first_count(row_dataset: Path) -> None:
                     SegmentOutcome(1, None, 'out of memory'))
     assert live.counts() == {'collecting': 0, 'pending': 0, 'training': 0, 'done': 2, 'failed': 1}
     assert live.cells[1].failed == 'out of memory'
+
+
+def _live(row_dataset: Path) -> LiveRow:
+    return LiveRow(OrchardConfig(segments=SegmentConfig(standoff_m=1.2)), row_dataset,
+                   trees=read_planting_map(row_dataset / 'planting_map.csv'))
+
+
+def test_a_cell_waiting_for_training_is_trained_on_both_passes(row_dataset: Path) -> None:
+    """Training slower than the drive: nothing starts before the robot is back. The request of the cell passed on
+    the way out, still waiting, is replaced by one holding the way back's keyframes too (before: its first-pass
+    keyframes only, for good); a cell training when the drive ends is asked for the rest once it is done."""
+    transforms = read_transforms(row_dataset)
+    n = len(transforms.frames)
+    intrinsics = [transforms.intrinsics_of(i) for i in range(n)]
+    live = _live(row_dataset)
+    queue: dict[int, SegmentRequest] = {}
+    out_pass = set()
+    for i, frame in enumerate(transforms.frames):
+        live.add([frame], [intrinsics[i]])
+        for request in live.due():
+            queue[request.segment.index] = request
+            if i < n // 2:
+                out_pass.add(request.segment.index)
+    for request in live.flush():
+        queue[request.segment.index] = request
+    assert out_pass and sorted(queue) == [0, 1, 2]                     # a cell was passed on the way out
+    assert all(min(r.segment.frames) < n // 2 <= max(r.segment.frames) for r in queue.values())  # both sides
+
+    live = _live(row_dataset)                                          # the same drive, a cell trains meanwhile
+    training = None
+    for i, frame in enumerate(transforms.frames):
+        live.add([frame], [intrinsics[i]])
+        for request in live.due():
+            if training is None:
+                training = request
+                live.started(request.segment.index)
+    assert training is not None and max(training.segment.frames) < n // 2
+    assert training.segment.index not in [r.segment.index for r in live.flush()]   # not asked while it trains
+    gt = json.loads((row_dataset / 'gt_fruits.json').read_text())['fruits']
+    live.record(training, _count(training, gt))
+    again = live.flush()                                   # the node flushes after each segment once the drive ended
+    assert [r.segment.index for r in again] == [training.segment.index] and again[0].version == 2
+    assert max(again[0].segment.frames) >= n // 2
