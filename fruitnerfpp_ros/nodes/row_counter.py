@@ -1,13 +1,15 @@
 """fruit_counter's row mode: segments trained in the background as the robot passes them, counts per tree.
 
 The tick hands new keyframes to :class:`~fruitnerfpp_ros.core.orchard.live.LiveRow` and queues the segments it
-finds passed; one worker thread trains them one after the other (newest request of a segment first replaces an
-older one still waiting) with :func:`~fruitnerfpp_ros.core.orchard.jobs.train_segment`, so the collection never
-waits. After each segment the row's count is joined again and published: ``~/tree_counts`` (report JSON, schema
-version 2), ``~/fruit_count`` (the row total so far), ``~/fruit_cloud``, ``~/fruit_centers``, ``~/fruit_markers``
-and ``~/tree_markers``. ``RUN_DIR/row/`` holds the segments (``cell_+NNN_vV/``), the row's files (trees.csv,
-trees.geojson, fruits.geojson, row_report.json) and ``events.jsonl`` (keyframes and publications with their wall
-time: the latency from passing a tree to its count).
+finds passed; one worker thread trains them one after the other (a newer request of a segment, e.g. with the way
+back's keyframes, replaces the one still waiting, in its place) with
+:func:`~fruitnerfpp_ros.core.orchard.jobs.train_segment`, so the collection never waits. After the drive has
+ended, each finished segment is asked again for the keyframes that came while it trained. After each segment the
+row's count is joined again and published: ``~/tree_counts`` (report JSON, schema version 2), ``~/fruit_count``
+(the row total so far), ``~/fruit_cloud``, ``~/fruit_centers``, ``~/fruit_markers`` and ``~/tree_markers``.
+``RUN_DIR/row/`` holds the segments (``cell_+NNN_vV/``), the row's files (trees.csv, trees.geojson,
+fruits.geojson, row_report.json) and ``events.jsonl`` (keyframes, segments queued / training / trained and
+publications with their wall time: the latency from passing a tree to its count, bench/row_latency.py).
 """
 
 from __future__ import annotations
@@ -116,9 +118,10 @@ class RowCounter:
         return True, f'row: {len(requests)} more segment(s) queued, {pending} waiting'
 
     def _enqueue(self, requests: list[SegmentRequest]) -> None:
-        for request in requests:  # under self._lock
-            self._queue.pop(request.segment.index, None)
+        for request in requests:  # under self._lock; a waiting request of the segment is replaced in its place
             self._queue[request.segment.index] = request
+            self._event(event='queued', segment=request.segment.index, version=request.version,
+                        keyframes=len(request.frames))
             self._log(LogLevel.INFO, f'row: segment {request.segment.index} (s {request.segment.core[0]:.2f}..'
                       f'{request.segment.core[1]:.2f} m, {len(request.frames)} keyframes, version '
                       f'{request.version}) queued')
@@ -145,9 +148,14 @@ class RowCounter:
                     return
                 _, request = self._queue.popitem(last=False)
                 self.live.started(request.segment.index)
+            self._event(event='training', segment=request.segment.index, version=request.version)
             outcome = self._train(request)
             with self._lock:
                 self.live.record(request, outcome)
+                if self._flushed:  # the drive has ended: keyframes that came while this segment trained
+                    self._enqueue(self.live.flush())
+            self._event(event='trained', segment=request.segment.index, version=request.version, ok=outcome.ok,
+                        seconds=round(outcome.seconds, 2))
             if not outcome.ok:
                 self._log(LogLevel.ERROR, f'row: segment {request.segment.index} failed: {outcome.error}')
             self._publish_row()

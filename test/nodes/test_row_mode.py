@@ -15,6 +15,7 @@ from rclpy.parameter import Parameter
 from std_msgs.msg import String, UInt32
 from std_srvs.srv import Trigger
 
+from fruitnerfpp_ros.core.orchard.latency import read_events, segment_latencies
 from fruitnerfpp_ros.nodes.fruit_counter import LATCHED_QOS, FruitCounterNode
 from test.core.orchard.conftest import TINY_ROW, fruits_shown_by_stamps
 from test.nodes.test_live_nodes import Graph, wait_for
@@ -83,7 +84,11 @@ def test_row_mode_publishes_tree_counts_while_the_row_is_driven(row_bag: Path, t
         wait_for(lambda: row_values().get('row/segments_done') == '3', 5, '/diagnostics: 3 segments done')
         assert row_values()['row/fixes'] != '0'
         assert (tmp_path / 'run' / 'row' / 'trees.geojson').is_file()
-        events = [json.loads(line) for line in (tmp_path / 'run' / 'row' / 'events.jsonl').read_text().splitlines()]
-        assert {e['event'] for e in events} == {'keyframe', 'published'}
+        events = read_events(tmp_path / 'run' / 'row' / 'events.jsonl')
+        assert {e['event'] for e in events} == {'keyframe', 'queued', 'training', 'trained', 'published'}
+        lags = segment_latencies(events)        # every segment passed and counted, each after it was passed
+        assert [lag.segment for lag in lags] == sorted({e['segment'] for e in events if e['event'] == 'trained'})
+        assert len(lags) == 3 and all(lag.first_count_s is not None and lag.first_count_s >= 0 for lag in lags)
+        assert all(lag.final_count_s is not None for lag in lags)
     finally:
         graph.close()
