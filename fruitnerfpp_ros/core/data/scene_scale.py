@@ -66,7 +66,7 @@ class ScaleConfig:
     The first fine vote spans the coarse vote's candidates, which the views of a row drive stretch along their
     viewing direction: at a 3 m standoff it spanned 13 m, its voxels (14 cm) twice the fruit, and the region and
     the masks' depths came out too large (pear_row_far: region 3.3 m across the row for a 1.2 m crown, diameter
-    99 mm for 68 mm; after two more votes 1.2 m and 77 mm; docs/results/accuracy_suite.md)."""
+    99 mm for 68 mm; after two more votes 1.2 m (1.3 m grown) and 77 mm; docs/results/accuracy_suite.md)."""
 
     def __post_init__(self) -> None:
         lo, hi = self.diameter_range_m
