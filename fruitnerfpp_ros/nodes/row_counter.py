@@ -150,12 +150,12 @@ class RowCounter:
                 self.live.started(request.segment.index)
             self._event(event='training', segment=request.segment.index, version=request.version)
             outcome = self._train(request)
+            self._event(event='trained', segment=request.segment.index, version=request.version, ok=outcome.ok,
+                        seconds=round(outcome.seconds, 2))
             with self._lock:
                 self.live.record(request, outcome)
                 if self._flushed:  # the drive has ended: keyframes that came while this segment trained
                     self._enqueue(self.live.flush())
-            self._event(event='trained', segment=request.segment.index, version=request.version, ok=outcome.ok,
-                        seconds=round(outcome.seconds, 2))
             if not outcome.ok:
                 self._log(LogLevel.ERROR, f'row: segment {request.segment.index} failed: {outcome.error}')
             self._publish_row()

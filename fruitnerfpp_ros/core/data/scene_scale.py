@@ -214,7 +214,9 @@ def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: 
         fine_box = _region(coarse.centres[candidates], coarse.voxel)
         fine = _vote(dataset, views, fine_box, config.fine_resolution, device)
         fruit = _fruit_voxels(fine, config.min_views, config.min_fraction, config.min_seen_share)
-        for _ in range(config.refine_votes if int(fruit.sum()) >= 4 else 0):
+        for _ in range(config.refine_votes):
+            if int(fruit.sum()) < 4:
+                break
             finer = _vote(dataset, views, _region(fine.centres[fruit], fine.voxel), config.fine_resolution, device)
             finer_fruit = _fruit_voxels(finer, config.min_views, config.min_fraction, config.min_seen_share)
             if int(finer_fruit.sum()) < 4:

@@ -8,9 +8,9 @@ driving direction: no further keyframe of this pass will see it. A passed cell w
 (:meth:`LiveRow.due`); with ``retrain_on_return`` it is due again when the robot passes it on the way back (its
 keyframes then show both sides; the new count replaces the first), also while its first request still waits for
 training (the new request replaces it: a CPU that trains slower than the robot drives trains each cell once, on
-both sides). :meth:`LiveRow.flush` makes every cell with
-keyframes not yet trained on due (the drive has ended). Results come back through :meth:`LiveRow.record`, and
-:meth:`LiveRow.result` joins the finished cells into the row's count (:func:`~.row_run.finish_row`).
+both sides). :meth:`LiveRow.flush` makes every cell with keyframes not yet trained on due (the drive has ended).
+Results come back through :meth:`LiveRow.record`, and :meth:`LiveRow.result` joins the finished cells into the
+row's count (:func:`~.row_run.finish_row`).
 
 ROS-free and single-threaded: the node calls it from its tick and its training worker under one lock.
 """

@@ -104,7 +104,7 @@ def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequenc
         a_seg, b_seg = by_index[k], by_index[k_next]
         a, b = done[k], done[k_next]
         # the overlap of the trusted stretches, grown by the match reach: the two copies of a fruit at its edge
-        # fall on both sides of it (3 of 8 double counts of a 5-tree row before)
+        # fall on both sides of it (2 of the 3 double counts across cuts of the 5-tree row before)
         reach = config.match_diameters * max(config.min_diameter_m, float(np.max(a.diameters, initial=0.0)),
                                              float(np.max(b.diameters, initial=0.0)))
         lo, hi = b_seg.trust[0] - reach, a_seg.trust[1] + reach
