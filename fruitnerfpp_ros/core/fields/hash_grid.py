@@ -111,10 +111,22 @@ class HashGridEncoding(nn.Module):
         #: [F, L * T]: feature-major, so each feature is one 1-D gather.
         self.table = nn.Parameter(torch.empty(features_per_level, num_levels * self.table_size))
         nn.init.uniform_(self.table, -init_scale, init_scale, generator=generator)
+        #: [L, 1, 1] weight of each level's features: all 1 except while :meth:`open_levels` holds fine ones back
+        #: (not saved: a loaded grid has every level open).
+        self.register_buffer('level_weights', torch.ones(num_levels, 1, 1), persistent=False)
 
     @property
     def output_dim(self) -> int:
         return self.num_levels * self.features_per_level
+
+    def open_levels(self, progress: float) -> None:
+        """Open the levels coarse to fine (BARF's schedule, Lin et al. 2021): at ``progress`` 0 only the coarsest
+        level contributes, each further one fades in with a cosine ramp, and from 1 on all do. In place (a compiled
+        forward sees the new weights without recompiling)."""
+        alpha = min(max(float(progress), 0.0), 1.0) * (self.num_levels - 1)
+        ramp = (torch.arange(self.num_levels, dtype=torch.float32) - alpha).neg().add(1.0).clamp(0.0, 1.0)
+        with torch.no_grad():
+            self.level_weights.copy_((0.5 - 0.5 * torch.cos(math.pi * ramp))[:, None, None])
 
     def vertex_index(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Table indices [8, L, N] (int32, level offsets included) and trilinear weights [8, L, N] of ``x``."""
@@ -145,4 +157,5 @@ class HashGridEncoding(nn.Module):
         flat = index.reshape(-1)
         features = [(self.table[f].index_select(0, flat).view(index.shape) * weights).sum(0)
                     for f in range(self.features_per_level)]                            # F x [L, N]
-        return torch.stack(features, -1).permute(1, 0, 2).reshape(n, self.output_dim)
+        stacked = torch.stack(features, -1) * self.level_weights                        # [L, N, F]
+        return stacked.permute(1, 0, 2).reshape(n, self.output_dim)

@@ -145,6 +145,10 @@ class GeometryStageConfig(StageSchedule):
     stages 1 and 2 and decayed like ``lr``; 0 = the recorded poses are used as they are."""
     pose_start_fraction: float = 0.25
     """The pose corrections start training after this fraction of stage 1 (a first geometry to align to)."""
+    coarse_to_fine_fraction: float = 0.0
+    """The geometry grid's levels open coarse to fine over this fraction of stage 1 (BARF's schedule): poses align
+    to a smooth field first, where the photometric gradient points the way over more than a fine cell. 0 = all
+    levels from the start."""
 
     @property
     def pose_lr_final(self) -> float:
@@ -295,6 +299,8 @@ class TrainConfig:
         for name in ('geometry', 'semantic'):
             if not 0.0 <= getattr(self, name).fruit_fraction < 1.0:
                 raise ConfigError(f'{name}.fruit_fraction must lie in [0, 1)')
+        if not 0.0 <= self.geometry.coarse_to_fine_fraction <= 1.0:
+            raise ConfigError('geometry.coarse_to_fine_fraction must lie in [0, 1]')
         if self.checkpoint_every <= 0 or self.log_every <= 0:
             raise ConfigError('checkpoint_every and log_every must be positive')
         if self.data.box_around not in ('fruit', 'fruit_and_cameras'):

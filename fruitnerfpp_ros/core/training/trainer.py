@@ -183,6 +183,9 @@ def _train_step(stage: TrainingStage, model: FruitNeRFModel, groups: list[ParamG
     lrs = [g.lr_at(fraction) for g in groups if g.params]
     for param_group, lr in zip(optimizer.param_groups, lrs):
         param_group['lr'] = lr
+    opening = config.geometry.coarse_to_fine_fraction
+    if stage.name == 'geometry' and opening > 0:
+        model.field.encoding.open_levels(fraction / opening)
     step = stage.losses(model, generator)
     optimizer.zero_grad(set_to_none=True)
     step.total.backward()
@@ -312,6 +315,7 @@ def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDatase
 def _finish_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDataset, config: TrainConfig,
                   run: RunDir, counters: _Progress, emit: ProgressCallback) -> None:
     """Held-out evaluation, the stage-end log line and summary; moves the counters to the next stage."""
+    model.field.encoding.open_levels(1.0)  # every level from here on (coarse_to_fine_fraction 1 ends just short)
     model.field.eval()
     eval_views = [int(v) for v in dataset.eval_indices[:config.eval_max_views]]
     # the heads a stage has not trained yet are not rendered (their figures are NaN: null in metrics.jsonl)

@@ -68,3 +68,25 @@ def test_resolutions_follow_the_fruit_size_not_the_box() -> None:
     assert small == (7, 107) and large == (20, 320)
     assert 2.0 / small[1] == pytest.approx(6.0 / large[1], rel=0.01)
     assert grid.resolutions(100.0, 0.01)[1] == 4096  # capped
+
+
+def test_levels_open_coarse_to_fine_and_closed_levels_neither_contribute_nor_learn() -> None:
+    torch.manual_seed(0)
+    grid = HashGridEncoding(HashGridConfig(num_levels=4, features_per_level=2, log2_table_size=10), 4, 64,
+                            init_scale=1.0)
+    x = torch.rand(64, 3)
+    full = grid(x).detach()
+    grid.open_levels(0.0)
+    out = grid(x)
+    assert torch.equal(out[:, :2], full[:, :2])             # the coarsest level is always on
+    assert torch.count_nonzero(out[:, 2:]) == 0              # the finer ones are held back
+    out.sum().backward()
+    grad = grid.table.grad.view(2, 4, -1)
+    assert torch.count_nonzero(grad[:, 1:]) == 0 and torch.count_nonzero(grad[:, 0]) > 0
+    grid.open_levels(0.5)                                      # alpha 1.5: level 1 on, level 2 half, level 3 off
+    half = grid(x).detach()
+    assert torch.equal(half[:, 2:4], full[:, 2:4]) and torch.allclose(half[:, 4:6], 0.5 * full[:, 4:6])
+    assert torch.count_nonzero(half[:, 6:]) == 0
+    grid.open_levels(1.0)
+    assert torch.equal(grid(x).detach(), full)
+    assert 'level_weights' not in grid.state_dict()           # a loaded grid has every level open

@@ -41,6 +41,9 @@ def test_cli_config_overrides_and_errors(tmp_path: Path, capsys: pytest.CaptureF
     (tmp_path / 'bad.yaml').write_text('geometry:\n  iteration: 7\n')
     with pytest.raises(ConfigError, match='bad.yaml.*geometry.iteration'):
         resolve_train_config('tiny', tmp_path / 'bad.yaml')
+    (tmp_path / 'open.yaml').write_text('geometry:\n  coarse_to_fine_fraction: 1.5\n')
+    with pytest.raises(ConfigError, match='coarse_to_fine_fraction'):
+        resolve_train_config('tiny', tmp_path / 'open.yaml')
     code = main(['train', str(tmp_path / 'missing'), '--out', str(tmp_path / 'run'), '--device', 'cpu'])
     err = capsys.readouterr().err
     assert code == 2 and 'transforms.json' in err and 'Traceback' not in err

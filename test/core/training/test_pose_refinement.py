@@ -81,3 +81,26 @@ def test_poses_train_in_the_first_two_stages_and_resume_exactly(scene: Path, tmp
     held_out = [v for v in report['views'] if not v['refined']]
     assert held_out and all(v['rotation_deg'] == 0.0 and v['translation_m'] == 0.0 for v in held_out)
     assert 0.0 < report['max_rotation_deg'] < 5.0 and 0.0 < report['max_translation_m'] < 0.1
+
+
+def _table_after(scene: Path, run: Path, steps: int, config: object) -> torch.Tensor:
+    """The geometry grid's table [F, L, T] after ``steps`` geometry steps."""
+    stop = threading.Event()
+
+    def stop_after(event: ProgressEvent) -> None:
+        if event.phase == 'train:geometry' and event.step >= steps:
+            stop.set()
+
+    assert train(scene, run, config, device='cpu', progress=stop_after, stop_event=stop).stopped
+    table = load_checkpoint(RunDir(run).latest_checkpoint)['field']['encoding.table']
+    return table.view(table.shape[0], config.field.geometry_grid.num_levels, -1)
+
+
+def test_coarse_to_fine_holds_the_fine_levels_of_the_geometry_grid_back(scene: Path, tmp_path: Path) -> None:
+    opening = replace_nested(REFINED, {'geometry': {'coarse_to_fine_fraction': 1.0}, 'log_every': 1})
+    one, two = (_table_after(scene, tmp_path / f'c2f{n}', n, opening) for n in (1, 2))
+    # step 1 (fraction 1/6 of the 6-step stage) opens level 1 in part: levels 2+ get no gradient, level 0 learns
+    assert torch.equal(one[:, 2:], two[:, 2:]) and not torch.equal(one[:, 0], two[:, 0])
+    plain = replace_nested(REFINED, {'log_every': 1})
+    one, two = (_table_after(scene, tmp_path / f'plain{n}', n, plain) for n in (1, 2))
+    assert not torch.equal(one[:, -1], two[:, -1])           # without it every level learns from the start
