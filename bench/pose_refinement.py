@@ -24,44 +24,41 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.config_io import load_yaml_mapping, replace_nested
 from fruitnerfpp_ros.core.data.dataset import load_dataset
+from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, read_transforms
+from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
+from fruitnerfpp_ros.core.geometry import rotation_angle_deg
 from fruitnerfpp_ros.core.progress import ProgressEvent
+from fruitnerfpp_ros.core.tracking.camera import PinholeView
 from fruitnerfpp_ros.core.training import RunDir, TrainConfig, train
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
 from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
 
 
-def _clean_poses(clean_dir: Path, file_paths: list[str]) -> tuple[np.ndarray, float, float]:
-    data = json.loads((clean_dir / 'transforms.json').read_text())
-    by_name = {f['file_path']: np.asarray(f['transform_matrix'], np.float64) for f in data['frames']}
-    return np.stack([by_name[p] for p in file_paths]), float(data['fl_x']), float(data.get('fl_y', data['fl_x']))
+def _clean_views(clean_dir: Path, file_paths: list[str]) -> tuple[np.ndarray, list[CameraIntrinsics]]:
+    """The exact poses [V, 4, 4] and intrinsics of ``file_paths``, from the clean twin's transforms.json."""
+    transforms = read_transforms(clean_dir)
+    by_name = {f.file_path: f for f in transforms.frames}
+    frames = [by_name[p] for p in file_paths]
+    return np.stack([f.T_world_camera for f in frames]), [f.intrinsics or transforms.intrinsics for f in frames]
 
 
-def _fruit_centres(dataset_dir: Path) -> np.ndarray:
-    records = json.loads((dataset_dir / 'gt_fruits.json').read_text())['fruits']
-    return np.asarray([r['center'] for r in records], np.float64)
-
-
-def _projections(T: np.ndarray, X: np.ndarray, fx: float, fy: float) -> tuple[np.ndarray, np.ndarray]:
-    """Pixel offsets from the principal point [V, N, 2] and depths [V, N] (OpenGL camera axes: -z forward)."""
-    p = np.einsum('nj,vjk->vnk', X, T[:, :3, :3]) - np.einsum('vj,vjk->vk', T[:, :3, 3], T[:, :3, :3])[:, None]
-    z = -p[..., 2]
-    return np.stack([fx * p[..., 0] / z, -fy * p[..., 1] / z], -1), z
-
-
-def pose_errors(T: np.ndarray, truth: np.ndarray, X: np.ndarray, fx: float, fy: float) -> dict[str, float]:
+def pose_errors(T: np.ndarray, truth: np.ndarray, cameras: list[CameraIntrinsics], X: np.ndarray
+                ) -> dict[str, float]:
     """Rotation / position error and the fruit reprojection error of poses ``T`` against ``truth`` ([V, 4, 4])."""
-    rel = np.transpose(truth[:, :3, :3], (0, 2, 1)) @ T[:, :3, :3]
-    angle = np.degrees(np.linalg.norm(Rotation.from_matrix(rel).as_rotvec(), axis=-1))
+    angle = rotation_angle_deg(truth[:, :3, :3], T[:, :3, :3])
     shift = np.linalg.norm(T[:, :3, 3] - truth[:, :3, 3], axis=-1)
-    a, za = _projections(truth, X, fx, fy)
-    b, _ = _projections(T, X, fx, fy)
-    px = np.linalg.norm(a - b, axis=-1)[za > 0.1]
+    px = []
+    for pose, exact, cam in zip(T, truth, cameras):
+        true_uv, depth = PinholeView.from_intrinsics(exact, cam).project(X)
+        uv, _ = PinholeView.from_intrinsics(pose, cam).project(X)
+        px.append(np.linalg.norm(uv - true_uv, axis=1)[depth > 0.1])
+    errors = np.concatenate(px)
     return {'rotation_deg_median': float(np.median(angle)), 'position_m_median': float(np.median(shift)),
-            'reprojection_px_median': float(np.median(px)), 'reprojection_px_p90': float(np.percentile(px, 90))}
+            'reprojection_px_median': float(np.nanmedian(errors)),
+            'reprojection_px_p90': float(np.nanpercentile(errors, 90))}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,9 +91,10 @@ def main(argv: list[str] | None = None) -> int:
         refinement.load_state_dict(poses)
         refined = refinement(dataset.T_world_camera.float()).detach().double().numpy()
         trained = np.flatnonzero(poses['trained'].numpy())
-    truth, fx, fy = _clean_poses(args.clean, list(dataset.file_paths))
-    X = _fruit_centres(args.dataset)
-    report = {name: pose_errors(T[trained], truth[trained], X, fx, fy)
+    truth, cameras = _clean_views(args.clean, list(dataset.file_paths))
+    X = load_ground_truth(args.dataset / 'gt_fruits.json').centers
+    views = [cameras[i] for i in trained]
+    report = {name: pose_errors(T[trained], truth[trained], views, X)
               for name, T in (('recorded', recorded), ('refined', refined))}
     for name, e in report.items():
         print(f"{name:9s} rotation {e['rotation_deg_median']:.2f} deg, position {e['position_m_median']:.3f} m, "

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.config_io import replace_nested
 from fruitnerfpp_ros.core.progress import ProgressEvent
-from fruitnerfpp_ros.core.training import RunDir, train
+from fruitnerfpp_ros.core.training import RunDir, TrainConfig, train
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
 from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement, rotation_from_axis_angle
 from test.core.training.stand_in_scene import make_sphere_scene
@@ -83,7 +83,7 @@ def test_poses_train_in_the_first_two_stages_and_resume_exactly(scene: Path, tmp
     assert 0.0 < report['max_rotation_deg'] < 5.0 and 0.0 < report['max_translation_m'] < 0.1
 
 
-def _table_after(scene: Path, run: Path, steps: int, config: object) -> torch.Tensor:
+def _table_after(scene: Path, run: Path, steps: int, config: TrainConfig) -> torch.Tensor:
     """The geometry grid's table [F, L, T] after ``steps`` geometry steps."""
     stop = threading.Event()
 
