@@ -18,7 +18,8 @@ from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit, fruit_diameter, label_groups
 from fruitnerfpp_ros.core.clustering.graph import nearest_labels
 from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_job, cluster_partition
-from fruitnerfpp_ros.core.clustering.merge import keep_owned_clusters, merge_close_centers, merge_clusters
+from fruitnerfpp_ros.core.clustering.merge import (keep_owned_clusters, merge_agreeing_neighbours, merge_close_centers,
+                                                   merge_clusters)
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
 from fruitnerfpp_ros.core.clustering.split import split_oversized
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
@@ -193,6 +194,8 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         sizes = np.bincount(labels[labels >= 0])
         labels = np.where((labels >= 0) & (sizes[np.maximum(labels, 0)] >= config.min_fruit_points), labels, -1)
     labels, n_split = split_oversized(xyz, emb, labels, config)
+    clusters_before_agreeing = int(labels.max()) + 1 if len(labels) else 0
+    labels = merge_agreeing_neighbours(xyz, emb, labels, config.merge_agreeing_m, config.merge_agreeing_cos)
     final_labels, fruits = fruits_from_labels(xyz, labels)
     t_end = time.perf_counter()
     exact = [r[1] for r in results]
@@ -201,6 +204,7 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         'partitions_in_executor': len(jobs) if parallel else 0,
         'clusters_before_merge': clusters_before_merge,
         'clusters_before_size_filter': clusters_before_filter, 'clusters_split': n_split,
+        'clusters_joined_agreeing': clusters_before_agreeing - (int(labels.max()) + 1 if len(labels) else 0),
         'noise_points': int(np.count_nonzero(final_labels == 0)),
         'graph_exact_fraction': float(np.mean(exact)) if exact else 1.0,
         'time_partition_s': t_part - t0, 'time_hdbscan_s': t_hdb - t_part, 'time_assign_s': t_assign - t_hdb,

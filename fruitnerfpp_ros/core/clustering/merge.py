@@ -15,7 +15,7 @@ from scipy.spatial import cKDTree
 from fruitnerfpp_ros.core.clustering.count_result import label_groups
 from fruitnerfpp_ros.core.clustering.partitions import assign_to_cells
 
-__all__ = ['keep_owned_clusters', 'merge_clusters', 'merge_close_centers']
+__all__ = ['keep_owned_clusters', 'merge_clusters', 'merge_close_centers', 'merge_agreeing_neighbours']
 
 
 def keep_owned_clusters(xyz: np.ndarray, members: np.ndarray, local_labels: np.ndarray, partition: int,
@@ -89,17 +89,59 @@ def merge_close_centers(xyz: np.ndarray, labels: np.ndarray, distance_m: float) 
     Returns:
         [N] labels, -1 noise, 0..K'-1.
     """
-    valid = labels >= 0
-    if distance_m <= 0 or not np.any(valid):
+    if distance_m <= 0 or not np.any(labels >= 0):
         return labels
-    n_clusters = int(labels.max()) + 1
+    ids, _, pairs = _close_cluster_pairs(xyz, labels, distance_m)
+    return _join_pairs(labels, ids[pairs[:, 0]], ids[pairs[:, 1]])
+
+
+def merge_agreeing_neighbours(xyz: np.ndarray, embedding: np.ndarray, labels: np.ndarray, reach_m: float,
+                              min_cosine: float) -> np.ndarray:
+    """Merge clusters whose median centres lie within ``reach_m`` and whose mean embeddings agree (transitively).
+
+    A fruit seen from both sides of a row is exported as two caps, its front and its back, with a gap between
+    them where its sides were seen at grazing angles only: HDBSCAN splits the caps although the instance field
+    gives them one embedding. Two touching fruits are told apart by the same field (the contrastive loss pushes
+    apart masks of one image), so a pair is joined only when its clusters' mean embeddings have a cosine of at
+    least ``min_cosine``.
+
+    Args:
+        xyz: [N, 3] positions (m); embedding: [N, D] embeddings (any norm).
+        labels: [N] labels, -1 noise, 0..K-1 clusters.
+        reach_m: largest distance between the two clusters' median centres (m); <= 0 returns ``labels``.
+        min_cosine: smallest cosine between the clusters' mean unit embeddings.
+
+    Returns:
+        [N] labels, -1 noise, 0..K'-1.
+    """
+    if reach_m <= 0 or not np.any(labels >= 0):
+        return labels
+    ids, groups, pairs = _close_cluster_pairs(xyz, labels, reach_m)
+    unit = np.asarray(embedding, np.float64)
+    unit = unit / np.maximum(np.linalg.norm(unit, axis=1, keepdims=True), 1e-12)
+    mean = np.array([unit[g].mean(axis=0) for g in groups])
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+    agree = np.einsum('ij,ij->i', mean[pairs[:, 0]], mean[pairs[:, 1]]) >= min_cosine
+    pairs = pairs[agree]
+    return _join_pairs(labels, ids[pairs[:, 0]], ids[pairs[:, 1]])
+
+
+def _close_cluster_pairs(xyz: np.ndarray, labels: np.ndarray,
+                         reach_m: float) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
+    """(cluster ids, each cluster's point indices, [P, 2] pairs of positions in ``ids`` whose clusters' median
+    centres lie within ``reach_m``)."""
     ids, groups = label_groups(labels)
     centers = np.array([np.median(xyz[g], axis=0) for g in groups])
-    pairs = cKDTree(centers).query_pairs(distance_m, output_type='ndarray')
-    if len(pairs) == 0:
+    return ids, groups, cKDTree(centers).query_pairs(reach_m, output_type='ndarray')
+
+
+def _join_pairs(labels: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """``labels`` with the clusters of every pair (a[i], b[i]) joined, transitively; renumbered 0..K'-1."""
+    if len(a) == 0:
         return labels
-    graph = scipy.sparse.coo_matrix((np.ones(len(pairs)), (ids[pairs[:, 0]], ids[pairs[:, 1]])),
-                                    shape=(n_clusters, n_clusters))
+    valid = labels >= 0
+    n_clusters = int(labels.max()) + 1
+    graph = scipy.sparse.coo_matrix((np.ones(len(a)), (a, b)), shape=(n_clusters, n_clusters))
     _, root = connected_components(graph, directed=False)
     out = np.where(valid, root[np.maximum(labels, 0)], -1)
     _, dense = np.unique(out[valid], return_inverse=True)

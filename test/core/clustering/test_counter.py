@@ -53,8 +53,9 @@ def test_fruit_straddling_a_partition_boundary_is_counted_once() -> None:
     result = count_fruits(synth.cloud, config)
     assert result.count == 27
     assert adjusted_rand_score(synth.labels, result.labels) > 0.99
-    # without overlap the cut fruits are counted twice: the mechanism matters
-    no_overlap = count_fruits(synth.cloud, ClusterConfig(partitions=4, overlap_m=0.0, n_jobs=1,
+    # without overlap the cut fruits are counted twice: the mechanism matters (the merge of agreeing neighbours,
+    # which would join the two pieces afterwards, off)
+    no_overlap = count_fruits(synth.cloud, ClusterConfig(partitions=4, overlap_m=0.0, n_jobs=1, merge_agreeing_m=0.0,
                                                          min_cluster_size=5, min_fruit_points=5))
     assert no_overlap.count > 27
 
@@ -144,6 +145,10 @@ def test_config_rejects_impossible_values() -> None:
         ClusterConfig(lambda_e=0.0)
     with pytest.raises(ConfigError, match='min_samples'):
         ClusterConfig(min_samples=50, knn_k=10)
+    with pytest.raises(ConfigError, match='merge_agreeing_m'):
+        ClusterConfig(merge_agreeing_m=-0.1)
+    with pytest.raises(ConfigError, match='merge_agreeing_cos'):
+        ClusterConfig(merge_agreeing_cos=1.5)
 
 
 def test_lengths_and_sizes_follow_the_fruit_not_the_metre() -> None:
@@ -151,6 +156,7 @@ def test_lengths_and_sizes_follow_the_fruit_not_the_metre() -> None:
                            fruit_share_keep=0.35)
     big = config.for_cloud(0.02, 0.15, fruit_points=100.0)
     assert big.lambda_e == pytest.approx(1.0) and big.overlap_m == pytest.approx(0.24)
+    assert ClusterConfig(merge_agreeing_m=0.1).for_cloud(0.02, 0.15).merge_agreeing_m == pytest.approx(0.2)
     assert (big.min_cluster_size, big.min_fruit_points) == (30, 35)
     assert config.for_cloud(0.02, None, None).lambda_e == 2.0  # unknown fruit size: as given
 
@@ -164,3 +170,24 @@ def test_a_scaled_copy_of_a_cloud_counts_the_same() -> None:
     a, b = (count_fruits(cloud, ClusterConfig(n_jobs=1)) for cloud in (small, large))
     assert a.count == b.count >= 10 and np.array_equal(a.labels, b.labels)
     assert b.stats['points_per_fruit'] == a.stats['points_per_fruit']
+
+
+def _two_sided(touching: bool) -> tuple[FruitPointCloud, np.ndarray]:
+    """Fruit seen from both sides of a row (along y): each fruit's front and back cap, its sides missing."""
+    synth = make_fruit_cloud(6000, 12, touching=touching, seed=3)
+    cloud = synth.cloud
+    across = (cloud.xyz[:, 1] - synth.centers[synth.labels, 1]) / synth.radius_m
+    keep = np.abs(across) > 0.5
+    caps = FruitPointCloud(cloud.xyz[keep], cloud.rgb[keep], cloud.semantic[keep], cloud.embedding[keep],
+                           spacing_m=cloud.spacing_m, fruit_diameter_m=2 * synth.radius_m)
+    return caps, synth.labels[keep]
+
+
+@pytest.mark.parametrize('touching', [False, True])
+def test_a_fruit_seen_from_both_sides_counts_once_and_touching_fruit_stay_apart(touching: bool) -> None:
+    caps, truth = _two_sided(touching)
+    split = count_fruits(caps, ClusterConfig(n_jobs=1, merge_agreeing_m=0.0))
+    assert split.count == 24  # the defect: each cap a fruit of its own
+    joined = count_fruits(caps, ClusterConfig(n_jobs=1))  # the default joins them
+    assert joined.count == 12 and joined.stats['clusters_joined_agreeing'] == 12
+    assert adjusted_rand_score(truth, joined.labels) > 0.99

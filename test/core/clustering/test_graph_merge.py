@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fruitnerfpp_ros.core.clustering.graph import build_graph, nearest_labels, pair_metric
-from fruitnerfpp_ros.core.clustering.merge import merge_close_centers, merge_clusters
+from fruitnerfpp_ros.core.clustering.merge import merge_agreeing_neighbours, merge_close_centers, merge_clusters
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
 from fruitnerfpp_ros.errors import ClusteringError
 
@@ -96,3 +96,21 @@ def test_merge_close_centers_joins_a_split_fruit_only() -> None:
     merged = merge_close_centers(xyz, labels, 0.04)
     assert merged[0] == merged[50] != merged[100]
     assert np.array_equal(merge_close_centers(xyz, labels, 0.0), labels)
+
+
+def test_merge_agreeing_neighbours_joins_the_caps_of_one_fruit_only() -> None:
+    rng = np.random.default_rng(0)
+    front = rng.normal([0.0, -0.03, 0], 0.008, (40, 3))
+    back = rng.normal([0.0, 0.03, 0], 0.008, (40, 3))  # the same fruit's back cap, 6 cm away
+    neighbour = rng.normal([0.07, 0.0, 0], 0.008, (40, 3))  # a touching fruit, 7 cm away
+    far = rng.normal([0.3, 0.0, 0], 0.008, (40, 3))  # same embedding as the fruit, 30 cm away
+    xyz = np.concatenate([front, back, neighbour, far])
+    fruit, other = np.eye(8)[0], np.eye(8)[1]
+    embedding = np.concatenate([np.tile(fruit, (80, 1)), np.tile(other, (40, 1)), np.tile(fruit, (40, 1))])
+    embedding += rng.normal(0, 0.05, embedding.shape)
+    labels = np.repeat([0, 1, 2, 3], 40)
+    merged = merge_agreeing_neighbours(xyz, embedding, labels, 0.1, 0.9)
+    assert merged[0] == merged[40] and len({merged[0], merged[80], merged[120]}) == 3
+    assert np.array_equal(merge_agreeing_neighbours(xyz, embedding, labels, 0.0, 0.9), labels)
+    assert np.array_equal(merge_agreeing_neighbours(xyz, embedding, labels, 0.05, 0.9), labels)  # caps 6 cm apart
+    assert np.array_equal(merge_agreeing_neighbours(xyz, -embedding, np.full(160, -1), 0.1, 0.9), np.full(160, -1))

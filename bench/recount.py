@@ -1,0 +1,119 @@
+#!/usr/bin/env python3
+"""Re-count finished runs with other clustering settings, on the same trained fields, and score them.
+
+Clustering is the cheap end of the pipeline: trying a clustering rule on the clouds a suite or a row already
+exported costs seconds per scene instead of a new training. The clouds are read, never rewritten.
+
+- A suite directory (``fruitnerfpp bench accuracy --out DIR``): every ``DIR/<scene>/run/cloud.npz`` is counted with
+  each variant and scored as the suite scores it (Hungarian, one GT diameter, fruits no training view saw left
+  out); writes ``OUT/recount.md`` and ``OUT/recount.json`` (F1 per scene and variant, the means). The variant
+  ``base`` (the settings given, no overrides) reproduces the suite's own figures.
+- An orchard row (``fruitnerfpp orchard ... --out RUN``) with ``--row-copy COPY``: each segment's cloud is counted
+  with the one variant given, and COPY gets the row's layout with the segments' ``result.json`` rewritten, so that
+  ``fruitnerfpp orchard DATASET --out COPY ...`` merges and reports the row again without training.
+
+Usage::
+
+    python bench/recount.py SUITE_DIR... --out OUT --variant agree=merge_agreeing_m:0.1,merge_agreeing_cos:0.9
+    python bench/recount.py RUN --row-copy RUN_AGREE --variant agree=merge_agreeing_m:0.1
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+
+from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.counter import count_fruits
+from fruitnerfpp_ros.cli.results import load_section
+from fruitnerfpp_ros.core.export.npz_io import read_cloud
+from fruitnerfpp_ros.core.pipeline import evaluate_run, training_views
+
+
+def _variant(text: str) -> tuple[str, dict[str, int | float | str]]:
+    """``name=key:value,key:value`` -> (name, overrides)."""
+    name, _, body = text.partition('=')
+    overrides: dict[str, int | float | str] = {}
+    for item in filter(None, body.split(',')):
+        key, _, value = item.partition(':')
+        for kind in (int, float, str):
+            try:
+                overrides[key] = kind(value)
+                break
+            except ValueError:
+                continue
+    return name, overrides
+
+
+def _eval_every(run_dir: Path) -> int:
+    from fruitnerfpp_ros.core.config_io import load_config
+    from fruitnerfpp_ros.core.training import RunDir, TrainConfig
+
+    return load_config(TrainConfig, RunDir(run_dir).config_path).data.eval_every
+
+
+def _scene_f1(scene_dir: Path, config: ClusterConfig) -> tuple[int, float]:
+    """(count, F1) of one suite scene's cloud counted with ``config``."""
+    cloud, _ = read_cloud(scene_dir / 'run' / 'cloud.npz')
+    count = count_fruits(cloud, config)
+    keyframes = scene_dir / 'run' / 'keyframes'
+    counted = keyframes if keyframes.is_dir() else scene_dir / 'data'
+    gt = scene_dir / 'data' / 'gt_fruits.json'
+    views = training_views(counted, _eval_every(scene_dir / 'run'), gt)
+    metrics = evaluate_run(scene_dir / 'counts.json', gt, centers=count.centers(), train_views=views)
+    return count.count, float(metrics.f1)
+
+
+def recount_suites(suite_dirs: list[Path], variants: dict[str, ClusterConfig], out: Path) -> None:
+    scenes = sorted(p.parent.parent for d in suite_dirs for p in d.glob('*/run/cloud.npz'))
+    table: dict[str, dict[str, tuple[int, float]]] = {}
+    for scene in scenes:
+        key = f'{scene.parent.name}/{scene.name}'
+        table[key] = {name: _scene_f1(scene, config) for name, config in variants.items()}
+        print(key, '  '.join(f'{n} {c} {f:.3f}' for n, (c, f) in table[key].items()), flush=True)
+    means = {name: float(np.mean([row[name][1] for row in table.values()])) for name in variants}
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'recount.json').write_text(json.dumps({'scenes': table, 'mean_f1': means}, indent=1))
+    lines = ['| scene | ' + ' | '.join(variants) + ' |', '|---|' + '---:|' * len(variants)]
+    lines += [f'| {k} | ' + ' | '.join(f'{c} / {f:.3f}' for c, f in row.values()) + ' |' for k, row in table.items()]
+    lines.append('| **mean F1** | ' + ' | '.join(f'**{m:.4f}**' for m in means.values()) + ' |')
+    (out / 'recount.md').write_text('\n'.join(lines) + '\n')
+    print('\n'.join(lines))
+
+
+def recount_row(run: Path, copy: Path, config: ClusterConfig) -> None:
+    for seg in sorted((run / 'segments').glob('seg_*')):
+        record = json.loads((seg / 'result.json').read_text())
+        cloud, _ = read_cloud(seg / 'run' / 'cloud.npz')
+        count = count_fruits(cloud, config)
+        record['fruits'] = [{'id': int(f.id), 'center': [float(v) for v in c], 'diameter': float(f.diameter_m),
+                             'n_points': int(f.n_points)} for f, c in zip(count.fruits, count.centers())]
+        target = copy / 'segments' / seg.name
+        target.mkdir(parents=True, exist_ok=True)
+        (target / 'result.json').write_text(json.dumps(record, indent=1))
+        print(f'{seg.name}: {len(record["fruits"])} fruits', flush=True)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('runs', type=Path, nargs='+', help='suite directories, or one orchard run with --row-copy')
+    parser.add_argument('--config', type=Path, help="YAML with a 'clustering' section (default: the defaults)")
+    parser.add_argument('--variant', action='append', default=[], help='name=key:value,... (repeatable)')
+    parser.add_argument('--out', type=Path, default=Path('recount'), help='suite mode: where the tables go')
+    parser.add_argument('--row-copy', type=Path, help='row mode: the copy of the orchard run to write')
+    args = parser.parse_args()
+    base = load_section(ClusterConfig, args.config, 'clustering')
+    variants = {'base': base} | {n: dataclasses.replace(base, **o) for n, o in map(_variant, args.variant)}
+    if args.row_copy is not None:
+        recount_row(args.runs[0], args.row_copy, list(variants.values())[-1])
+    else:
+        recount_suites(args.runs, variants, args.out)
+    return 0
+
+
+if __name__ == '__main__':
+    raise SystemExit(main())
