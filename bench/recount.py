@@ -27,11 +27,14 @@ from pathlib import Path
 
 import numpy as np
 
+from fruitnerfpp_ros.cli.results import load_section
+from fruitnerfpp_ros.core.benchmark.scene_run import scored_ground_truth
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
-from fruitnerfpp_ros.cli.results import load_section
+from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
-from fruitnerfpp_ros.core.pipeline import evaluate_run, training_views
+from fruitnerfpp_ros.core.orchard.jobs import read_segment_result, segment_fruits, write_segment_result
+from fruitnerfpp_ros.core.training import TrainConfig
 
 
 def _variant(text: str) -> tuple[str, dict[str, int | float | str]]:
@@ -49,23 +52,14 @@ def _variant(text: str) -> tuple[str, dict[str, int | float | str]]:
     return name, overrides
 
 
-def _eval_every(run_dir: Path) -> int:
-    from fruitnerfpp_ros.core.config_io import load_config
-    from fruitnerfpp_ros.core.training import RunDir, TrainConfig
-
-    return load_config(TrainConfig, RunDir(run_dir).config_path).data.eval_every
-
-
-def _scene_f1(scene_dir: Path, config: ClusterConfig) -> tuple[int, float]:
-    """(count, F1) of one suite scene's cloud counted with ``config``."""
+def _scene_counts(scene_dir: Path, variants: dict[str, ClusterConfig]) -> dict[str, tuple[int, float]]:
+    """{variant: (count, F1)} of one suite scene's cloud, scored as the suite scores it."""
     cloud, _ = read_cloud(scene_dir / 'run' / 'cloud.npz')
-    count = count_fruits(cloud, config)
-    keyframes = scene_dir / 'run' / 'keyframes'
-    counted = keyframes if keyframes.is_dir() else scene_dir / 'data'
-    gt = scene_dir / 'data' / 'gt_fruits.json'
-    views = training_views(counted, _eval_every(scene_dir / 'run'), gt)
-    metrics = evaluate_run(scene_dir / 'counts.json', gt, centers=count.centers(), train_views=views)
-    return count.count, float(metrics.f1)
+    keyframes = scene_dir / 'run' / 'keyframes'  # a bag scene trained on the replay's keyframes
+    gt = scored_ground_truth(scene_dir / 'data' / 'gt_fruits.json', keyframes if keyframes.is_dir() else
+                             scene_dir / 'data', scene_dir / 'run', TrainConfig().data.eval_every)
+    counts = {name: count_fruits(cloud, config) for name, config in variants.items()}
+    return {name: (c.count, float(evaluate_counts(c.centers(), gt).f1)) for name, c in counts.items()}
 
 
 def recount_suites(suite_dirs: list[Path], variants: dict[str, ClusterConfig], out: Path) -> None:
@@ -73,7 +67,7 @@ def recount_suites(suite_dirs: list[Path], variants: dict[str, ClusterConfig], o
     table: dict[str, dict[str, tuple[int, float]]] = {}
     for scene in scenes:
         key = f'{scene.parent.name}/{scene.name}'
-        table[key] = {name: _scene_f1(scene, config) for name, config in variants.items()}
+        table[key] = _scene_counts(scene, variants)
         print(key, '  '.join(f'{n} {c} {f:.3f}' for n, (c, f) in table[key].items()), flush=True)
     means = {name: float(np.mean([row[name][1] for row in table.values()])) for name in variants}
     out.mkdir(parents=True, exist_ok=True)
@@ -87,15 +81,17 @@ def recount_suites(suite_dirs: list[Path], variants: dict[str, ClusterConfig], o
 
 def recount_row(run: Path, copy: Path, config: ClusterConfig) -> None:
     for seg in sorted((run / 'segments').glob('seg_*')):
-        record = json.loads((seg / 'result.json').read_text())
+        done = read_segment_result(seg)
+        if done is None:
+            print(f'{seg.name}: no result, skipped', flush=True)
+            continue
+        fruits, record = done
         cloud, _ = read_cloud(seg / 'run' / 'cloud.npz')
-        count = count_fruits(cloud, config)
-        record['fruits'] = [{'id': int(f.id), 'center': [float(v) for v in c], 'diameter': float(f.diameter_m),
-                             'n_points': int(f.n_points)} for f, c in zip(count.fruits, count.centers())]
-        target = copy / 'segments' / seg.name
-        target.mkdir(parents=True, exist_ok=True)
-        (target / 'result.json').write_text(json.dumps(record, indent=1))
-        print(f'{seg.name}: {len(record["fruits"])} fruits', flush=True)
+        fruits = segment_fruits(fruits.segment, count_fruits(cloud, config))
+        info = {k: v for k, v in record.items() if k not in ('segment', 'fruits')}
+        (copy / 'segments' / seg.name).mkdir(parents=True, exist_ok=True)
+        write_segment_result(copy / 'segments' / seg.name, fruits, **info)
+        print(f'{seg.name}: {len(fruits.ids)} fruits', flush=True)
 
 
 def main() -> int:
@@ -104,7 +100,8 @@ def main() -> int:
     parser.add_argument('--config', type=Path, help="YAML with a 'clustering' section (default: the defaults)")
     parser.add_argument('--variant', action='append', default=[], help='name=key:value,... (repeatable)')
     parser.add_argument('--out', type=Path, default=Path('recount'), help='suite mode: where the tables go')
-    parser.add_argument('--row-copy', type=Path, help='row mode: the copy of the orchard run to write')
+    parser.add_argument('--row-copy', type=Path, help='row mode: the copy of the orchard run to write (with '
+                        'the last --variant)')
     args = parser.parse_args()
     base = load_section(ClusterConfig, args.config, 'clustering')
     variants = {'base': base} | {n: dataclasses.replace(base, **o) for n, o in map(_variant, args.variant)}

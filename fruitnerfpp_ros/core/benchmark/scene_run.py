@@ -30,12 +30,13 @@ from fruitnerfpp_ros.core.benchmark.suites import SuiteScene
 
 if TYPE_CHECKING:  # torch stays unimported until a scene runs
     from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    from fruitnerfpp_ros.core.evaluation.ground_truth import GroundTruth
     from fruitnerfpp_ros.core.export.config import ExportConfig
     from fruitnerfpp_ros.core.pipeline import PipelineResult
     from fruitnerfpp_ros.core.synthetic import SynthConfig
     from fruitnerfpp_ros.core.training import TrainConfig
 
-__all__ = ['BagReplayRequest', 'BagReplayOutcome', 'BagRunner', 'SceneJob', 'run_scene',
+__all__ = ['BagReplayRequest', 'BagReplayOutcome', 'BagRunner', 'SceneJob', 'run_scene', 'scored_ground_truth',
            'SCENE_LOG', 'SCENE_JSON', 'PICTURE']
 
 SCENE_LOG, SCENE_JSON, PICTURE, TRACK_COUNTS = 'scene.log', 'scene.json', 'count.png', 'track_counts.json'
@@ -136,13 +137,20 @@ def _output_to(path: Path) -> Iterator[None]:
             os.close(saved[1])
 
 
-def _eval_every(run_dir: Path, job: SceneJob) -> int:
-    """``data.eval_every`` the run trained with (its config.yaml), else the job's."""
+def scored_ground_truth(gt_path: Path, counted_dir: Path, run_dir: Path, default_eval_every: int) -> GroundTruth:
+    """A scene's ground truth as the suite scores it: fruits no training view of the run saw marked unseen.
+
+    ``counted_dir``: the dataset the run trained on (a bag scene's keyframes); the held-out views are every
+    ``data.eval_every``-th of the run's config.yaml, else ``default_eval_every``.
+    """
     from fruitnerfpp_ros.core.config_io import load_config
+    from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
+    from fruitnerfpp_ros.core.pipeline import training_views  # torch: in the scene's process only
     from fruitnerfpp_ros.core.training import RunDir, TrainConfig
 
     path = RunDir(run_dir).config_path
-    return load_config(TrainConfig, path).data.eval_every if path.is_file() else job.train_config.data.eval_every
+    eval_every = load_config(TrainConfig, path).data.eval_every if path.is_file() else default_eval_every
+    return load_ground_truth(gt_path, train_views=training_views(counted_dir, eval_every, gt_path))
 
 
 def _bag_parameters(job: SceneJob, config: SynthConfig) -> dict[str, Any]:
@@ -235,9 +243,7 @@ def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
     except Exception as err:  # noqa: BLE001 - reported in the scene's row; the peer still runs
         record.fail('ours', err)
     record.values['n_views'] = len(read_transforms(counted_dir).frames)
-    from fruitnerfpp_ros.core.pipeline import training_views  # torch: in the scene's process only
-    train_views = training_views(counted_dir, _eval_every(scene_dir / 'run', job), synth.gt_path)
-    gt = load_ground_truth(synth.gt_path, train_views=train_views)
+    gt = scored_ground_truth(synth.gt_path, counted_dir, scene_dir / 'run', job.train_config.data.eval_every)
     record.values['gt_seen'] = int(gt.seen.sum())
     if pipeline is not None:
         metrics = evaluate_counts(pipeline.count.centers(), gt)

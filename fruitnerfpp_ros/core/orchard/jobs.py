@@ -21,7 +21,7 @@ import sys
 import time
 import traceback
 from pathlib import Path
-from typing import Any, Callable, NamedTuple, Protocol, Sequence
+from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Protocol, Sequence
 
 import numpy as np
 
@@ -29,7 +29,11 @@ from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.orchard.merge import SegmentFruits
 from fruitnerfpp_ros.errors import FruitNerfError
 
+if TYPE_CHECKING:
+    from fruitnerfpp_ros.core.clustering.count_result import CountResult
+
 __all__ = ['SegmentJob', 'SegmentOutcome', 'JobFunction', 'train_segment', 'run_attempt', 'read_segment_result',
+           'segment_fruits', 'write_segment_result',
            'SegmentRunner', 'InProcessRunner', 'RayRunner', 'RESULT_NAME', 'ATTEMPTS_NAME']
 
 RESULT_NAME = 'result.json'
@@ -162,16 +166,26 @@ def train_segment(job: SegmentJob, stop_event: Any = None) -> SegmentFruits:
                           stop_event=stop_event)
     if result.stopped:
         raise FruitNerfError(f'segment {job.index}: the pipeline stopped before the count')
-    fruits = SegmentFruits(job.index, result.count.centers(),
-                           np.array([f.diameter_m for f in result.count.fruits], np.float64),
-                           np.array([f.n_points for f in result.count.fruits], np.int64),
-                           np.array([f.id for f in result.count.fruits], np.int64))
-    record = {'segment': job.index, 'seconds': round(time.perf_counter() - started, 2), 'worker': _worker(),
-              'peak_rss_mib': round(_peak_rss_mib(), 1),
+    fruits = segment_fruits(job.index, result.count)
+    write_segment_result(segment_dir, fruits, seconds=round(time.perf_counter() - started, 2), worker=_worker(),
+                         peak_rss_mib=round(_peak_rss_mib(), 1))
+    return fruits
+
+
+def segment_fruits(index: int, count: CountResult) -> SegmentFruits:
+    """Segment ``index``'s fruits from its pipeline count."""
+    return SegmentFruits(index, count.centers(), np.array([f.diameter_m for f in count.fruits], np.float64),
+                         np.array([f.n_points for f in count.fruits], np.int64),
+                         np.array([f.id for f in count.fruits], np.int64))
+
+
+def write_segment_result(segment_dir: str | Path, fruits: SegmentFruits, **info: Any) -> None:
+    """Write ``SEGMENT_DIR/result.json`` (what :func:`read_segment_result` reads): ``info`` (seconds, worker,
+    peak_rss_mib) and the fruits."""
+    record = {'segment': int(fruits.segment), **info,
               'fruits': [{'id': int(i), 'center': [float(v) for v in c], 'diameter': float(d), 'n_points': int(n)}
                          for i, c, d, n in zip(fruits.ids, fruits.centers, fruits.diameters, fruits.n_points)]}
-    atomic_write_text(segment_dir / RESULT_NAME, json.dumps(record, indent=1))
-    return fruits
+    atomic_write_text(Path(segment_dir) / RESULT_NAME, json.dumps(record, indent=1))
 
 
 JobFunction = Callable[[SegmentJob], SegmentFruits]
