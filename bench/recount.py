@@ -1,8 +1,10 @@
 #!/usr/bin/env python3
-"""Re-count finished runs with other clustering settings, on the same trained fields, and score them.
+"""Re-count finished runs with other clustering (or export) settings, on the same trained fields, and score them.
 
-Clustering is the cheap end of the pipeline: trying a clustering rule on the clouds a suite or a row already
-exported costs seconds per scene instead of a new training. The clouds are read, never rewritten.
+Export and clustering are the cheap end of the pipeline: trying a rule on the fields a suite or a row already
+trained costs seconds per scene instead of a new training. A variant's keys are ClusterConfig fields, or
+ExportConfig fields prefixed with ``export.`` (the cloud is then exported again from the run's checkpoint, into
+OUT/clouds, e.g. ``--variant cell=export.view_cell_fruit_fraction:0.25``). The runs are read, never rewritten.
 
 - A suite directory (``fruitnerfpp bench accuracy --out DIR``): every ``DIR/<scene>/run/cloud.npz`` is counted with
   each variant and scored as the suite scores it (Hungarian, one GT diameter, fruits no training view saw left
@@ -24,6 +26,7 @@ import argparse
 import dataclasses
 import json
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -32,7 +35,9 @@ from fruitnerfpp_ros.core.benchmark.scene_run import scored_ground_truth
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
 from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
+from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
+from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.orchard.jobs import read_segment_result, segment_fruits, write_segment_result
 from fruitnerfpp_ros.core.training import TrainConfig
 
@@ -52,22 +57,49 @@ def _variant(text: str) -> tuple[str, dict[str, int | float | str]]:
     return name, overrides
 
 
-def _scene_counts(scene_dir: Path, variants: dict[str, ClusterConfig]) -> dict[str, tuple[int, float]]:
+class Variant(NamedTuple):
+    """A clustering config and the export overrides (none: the run's own cloud)."""
+
+    cluster: ClusterConfig
+    export: tuple[tuple[str, int | float | str], ...] = ()
+
+
+def _variants(base: ClusterConfig, texts: list[str]) -> dict[str, Variant]:
+    out = {'base': Variant(base)}
+    for name, overrides in map(_variant, texts):
+        export = tuple(sorted((k.removeprefix('export.'), v) for k, v in overrides.items() if k.startswith('export.')))
+        cluster = {k: v for k, v in overrides.items() if not k.startswith('export.')}
+        out[name] = Variant(dataclasses.replace(base, **cluster), export)
+    return out
+
+
+def _cloud(run_dir: Path, export: tuple[tuple[str, int | float | str], ...], scratch: Path) -> FruitPointCloud:
+    """The run's exported cloud, or the cloud its checkpoint gives with the export overrides."""
+    if not export:
+        return read_cloud(run_dir / 'cloud.npz')[0]
+    from fruitnerfpp_ros.core.pipeline import export_run
+    config = dataclasses.replace(ExportConfig(), **dict(export))
+    scratch.mkdir(parents=True, exist_ok=True)
+    return export_run(run_dir, config, device='cpu', out=scratch / 'cloud.ply', write_cloud=False).cloud
+
+
+def _scene_counts(scene_dir: Path, variants: dict[str, Variant], scratch: Path) -> dict[str, tuple[int, float]]:
     """{variant: (count, F1)} of one suite scene's cloud, scored as the suite scores it."""
-    cloud, _ = read_cloud(scene_dir / 'run' / 'cloud.npz')
+    clouds = {v.export: _cloud(scene_dir / 'run', v.export, scratch / str(i))
+              for i, v in enumerate({v.export: v for v in variants.values()}.values())}
     keyframes = scene_dir / 'run' / 'keyframes'  # a bag scene trained on the replay's keyframes
     gt = scored_ground_truth(scene_dir / 'data' / 'gt_fruits.json', keyframes if keyframes.is_dir() else
                              scene_dir / 'data', scene_dir / 'run', TrainConfig().data.eval_every)
-    counts = {name: count_fruits(cloud, config) for name, config in variants.items()}
+    counts = {name: count_fruits(clouds[v.export], v.cluster) for name, v in variants.items()}
     return {name: (c.count, float(evaluate_counts(c.centers(), gt).f1)) for name, c in counts.items()}
 
 
-def recount_suites(suite_dirs: list[Path], variants: dict[str, ClusterConfig], out: Path) -> None:
+def recount_suites(suite_dirs: list[Path], variants: dict[str, Variant], out: Path) -> None:
     scenes = sorted(p.parent.parent for d in suite_dirs for p in d.glob('*/run/cloud.npz'))
     table: dict[str, dict[str, tuple[int, float]]] = {}
     for scene in scenes:
         key = f'{scene.parent.name}/{scene.name}'
-        table[key] = _scene_counts(scene, variants)
+        table[key] = _scene_counts(scene, variants, out / 'clouds' / key)
         print(key, '  '.join(f'{n} {c} {f:.3f}' for n, (c, f) in table[key].items()), flush=True)
     means = {name: float(np.mean([row[name][1] for row in table.values()])) for name in variants}
     out.mkdir(parents=True, exist_ok=True)
@@ -79,15 +111,15 @@ def recount_suites(suite_dirs: list[Path], variants: dict[str, ClusterConfig], o
     print('\n'.join(lines))
 
 
-def recount_row(run: Path, copy: Path, config: ClusterConfig) -> None:
+def recount_row(run: Path, copy: Path, variant: Variant) -> None:
     for seg in sorted((run / 'segments').glob('seg_*')):
         done = read_segment_result(seg)
         if done is None:
             print(f'{seg.name}: no result, skipped', flush=True)
             continue
         fruits, record = done
-        cloud, _ = read_cloud(seg / 'run' / 'cloud.npz')
-        fruits = segment_fruits(fruits.segment, count_fruits(cloud, config))
+        cloud = _cloud(seg / 'run', variant.export, copy / 'segments' / seg.name / 'cloud')
+        fruits = segment_fruits(fruits.segment, count_fruits(cloud, variant.cluster))
         info = {k: v for k, v in record.items() if k not in ('segment', 'fruits')}
         (copy / 'segments' / seg.name).mkdir(parents=True, exist_ok=True)
         write_segment_result(copy / 'segments' / seg.name, fruits, **info)
@@ -104,7 +136,7 @@ def main() -> int:
                         'the last --variant)')
     args = parser.parse_args()
     base = load_section(ClusterConfig, args.config, 'clustering')
-    variants = {'base': base} | {n: dataclasses.replace(base, **o) for n, o in map(_variant, args.variant)}
+    variants = _variants(base, args.variant)
     if args.row_copy is not None:
         recount_row(args.runs[0], args.row_copy, list(variants.values())[-1])
     else:

@@ -1,0 +1,42 @@
+"""bench/recount.py on a suite-shaped directory of the tiny trained run: its base variant counts the run's own cloud,
+an export variant exports the cloud again from the checkpoint."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+from fruitnerfpp_ros.core.pipeline import export_run
+from test.accuracy_targets import assert_counted
+
+BENCH = Path(__file__).resolve().parents[1] / 'bench' / 'recount.py'
+
+
+def _recount_module():
+    spec = importlib.util.spec_from_file_location('bench_recount', BENCH)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_export_variants_export_again_from_the_checkpoint(tiny_trained_run: Path, tiny_apple_dataset: Path,
+                                                          tmp_path: Path) -> None:
+    scene = tmp_path / 'suite' / 'apple'
+    shutil.copytree(tiny_trained_run, scene / 'run')
+    shutil.copytree(tiny_apple_dataset, scene / 'data')
+    export_run(scene / 'run', device='cpu', dataset_dir=scene / 'data')       # the suite's own cloud
+    recount = _recount_module()
+    from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    variants = recount._variants(ClusterConfig(), ['same=export.min_views:2',       # the default: the same cloud
+                                                   'strict=export.min_views:40'])   # most voxels fail it
+    assert variants['same'].export == (('min_views', 2),) and variants['same'].cluster == ClusterConfig()
+    recount.recount_suites([tmp_path / 'suite'], variants, tmp_path / 'out')
+    table = json.loads((tmp_path / 'out' / 'recount.json').read_text())['scenes']['suite/apple']
+    (base_count, base_f1), (same_count, same_f1), (strict_count, _) = table['base'], table['same'], table['strict']
+    assert_counted(base_count, 20, base_f1)
+    assert (same_count, same_f1) == (base_count, base_f1)
+    assert strict_count < base_count
+    assert (tmp_path / 'out' / 'clouds' / 'suite' / 'apple').is_dir()
