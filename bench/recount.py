@@ -4,7 +4,7 @@
 Export and clustering are the cheap end of the pipeline: trying a rule on the fields a suite or a row already
 trained costs seconds per scene instead of a new training. A variant's keys are ClusterConfig fields, or
 ExportConfig fields prefixed with ``export.`` (the cloud is then exported again from the run's checkpoint, into
-OUT/clouds, e.g. ``--variant cell=export.view_cell_fruit_fraction:0.25``). The runs are read, never rewritten.
+OUT/clouds, e.g. ``--variant views3=export.min_views:3``). The runs are read, never rewritten.
 
 - A suite directory (``fruitnerfpp bench accuracy --out DIR``): every ``DIR/<scene>/run/cloud.npz`` is counted with
   each variant and scored as the suite scores it (Hungarian, one GT diameter, fruits no training view saw left
@@ -85,8 +85,8 @@ def _cloud(run_dir: Path, export: tuple[tuple[str, int | float | str], ...], scr
 
 def _scene_counts(scene_dir: Path, variants: dict[str, Variant], scratch: Path) -> dict[str, tuple[int, float]]:
     """{variant: (count, F1)} of one suite scene's cloud, scored as the suite scores it."""
-    clouds = {v.export: _cloud(scene_dir / 'run', v.export, scratch / str(i))
-              for i, v in enumerate({v.export: v for v in variants.values()}.values())}
+    exports = dict.fromkeys(v.export for v in variants.values())   # each export variant exported once
+    clouds = {e: _cloud(scene_dir / 'run', e, scratch / str(i)) for i, e in enumerate(exports)}
     keyframes = scene_dir / 'run' / 'keyframes'  # a bag scene trained on the replay's keyframes
     gt = scored_ground_truth(scene_dir / 'data' / 'gt_fruits.json', keyframes if keyframes.is_dir() else
                              scene_dir / 'data', scene_dir / 'run', TrainConfig().data.eval_every)

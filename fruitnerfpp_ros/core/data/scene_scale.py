@@ -241,12 +241,16 @@ def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: 
     coarse = _vote(dataset, views, np.asarray(search_box, np.float64), config.coarse_resolution, device)
     candidates = _fruit_voxels(coarse, config.min_views, 0.5 * config.min_fraction, config.min_seen_share)
     region, n_fruit, diameters = None, 0, np.zeros(0)
-    region_fraction = config.min_fraction if config.region_fraction is None else config.region_fraction
-    region_angle = 0.0 if config.region_fraction is None else config.region_view_angle_deg
+
+    def fruit_voxels(votes: _Votes) -> torch.Tensor:
+        return _fruit_voxels(votes, config.min_views, config.min_fraction, config.min_seen_share)
 
     def held_voxels(votes: _Votes) -> torch.Tensor:
-        return _fruit_voxels(votes, config.min_views, config.min_fraction, config.min_seen_share) | _fruit_voxels(
-            votes, config.min_views, region_fraction, config.min_seen_share, region_angle)
+        """The voxels the region holds: the fruit voxels, and those placed by views spread wide enough."""
+        if config.region_fraction is None:
+            return fruit_voxels(votes)
+        return fruit_voxels(votes) | _fruit_voxels(votes, config.min_views, config.region_fraction,
+                                                   config.min_seen_share, config.region_view_angle_deg)
 
     if int(candidates.sum()) >= 4:
         fine = _vote(dataset, views, _region(coarse.centres[candidates], coarse.voxel), config.fine_resolution, device)
@@ -262,7 +266,7 @@ def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: 
             fine, held = finer, finer_held
             if not shrunk:  # the region no longer shrinks: another vote would repeat this one
                 break
-        fruit = _fruit_voxels(fine, config.min_views, config.min_fraction, config.min_seen_share)
+        fruit = fruit_voxels(fine)
         n_fruit = int(fruit.sum())
         if int(held.sum()) >= 4 and n_fruit >= 4:
             region = _region(fine.centres[held], fine.voxel)
