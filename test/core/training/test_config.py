@@ -25,7 +25,8 @@ def test_presets_scale_up() -> None:
     assert tiny.geometry.iterations < cpu.geometry.iterations < default.geometry.iterations \
         < paper.geometry.iterations
     assert cpu.field == tiny.field and cpu.instance == tiny.instance
-    assert cpu.geometry.batch_rays > tiny.geometry.batch_rays
+    rays = [c.geometry.iterations * c.geometry.batch_rays for c in (tiny, cpu, default, paper)]
+    assert rays == sorted(rays) and len(set(rays)) == 4  # each preset trains its geometry on more rays
     assert tiny.geometry.pose_lr == default.geometry.pose_lr == 0.0 < cpu.geometry.pose_lr  # exact test poses
     assert default.instance.groups == 4 and default.instance.group_size == 8 and default.instance.pixels_per_fruit == 32
     assert default.instance.temperature == 0.2 and default.field.embedding_dim == 32
