@@ -43,9 +43,9 @@ def _tiny() -> TrainConfig:
 
 
 def _cpu() -> TrainConfig:
-    # The tiny field with 3x the steps and 2x the rays of its semantic stage (and, until 2026-12-04, of its geometry
-    # stage: see the end of this comment): on an 80-apple tree
-    # F1 0.52 -> 0.66 (semantic IoU 0.26 -> 0.35); on the test scene's seeds 0 / 1 F1 0.97 / 0.88 -> 0.97 / 0.97
+    # The tiny field with 3x the steps and 2x the rays of its semantic stage (of its geometry stage too until
+    # 2026-12-04, below): on an 80-apple tree F1 0.52 -> 0.66 (semantic IoU 0.26 -> 0.35); on the test scene's
+    # seeds 0 / 1 F1 0.97 / 0.88 -> 0.97 / 0.97
     # (docs/results/tiny_preset.md). About 3x tiny's training time. It refines the poses, as robot odometry needs,
     # from 10 % of stage 1 at 1e-3: on the suite's 2 cm / 1 deg noise scene F1 0.222 -> 0.337 and 0.286 -> 0.465
     # (two seeds) against 3e-4 from 25 %, the noise-free suite scenes within -0.013..+0.009
