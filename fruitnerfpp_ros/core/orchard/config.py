@@ -99,11 +99,20 @@ class TreeConfig:
     complete_margin_m: float = 0.2
     """Live counts: a tree is complete when its crown (trunk +- half a spacing) plus this lies in finished
     segments."""
+    assign: str = 'crown'
+    """Which tree a fruit goes to: ``crown``, the tree whose crown shell (a sphere fitted to the fruit, started from
+    the trunks) it lies closest to, so a large crown keeps the fruit it reaches past the midpoint to a small
+    neighbour; ``trunk``, the nearest trunk (horizontal distance)."""
+    crown_min_fruits: int = 12
+    """``crown``: a tree with fewer fruits gets no fitted crown (a sphere through a few points is no crown); its
+    fruit go by the median crown radius round its trunk's vertical, and with no fitted crown at all by trunk."""
 
     def __post_init__(self) -> None:
         _positive('trees', spacing_m=self.spacing_m, min_spacing_m=self.min_spacing_m)
         if self.min_fruits_per_tree < 1 or self.iterations < 1 or self.complete_margin_m < 0:
             raise ConfigError('trees: min_fruits_per_tree and iterations must be >= 1, complete_margin_m >= 0')
+        if self.assign not in ('crown', 'trunk') or self.crown_min_fruits < 4:
+            raise ConfigError(f'trees: assign must be crown or trunk (got {self.assign!r}), crown_min_fruits >= 4')
 
 
 @dataclass(frozen=True)

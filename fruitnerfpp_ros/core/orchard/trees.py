@@ -1,4 +1,4 @@
-"""Trees of a row: from a planting map or found from the fruit; each fruit goes to the nearest trunk.
+"""Trees of a row: from a planting map or found from the fruit; each fruit goes to the nearest crown.
 
 Planting maps (:func:`read_planting_map`):
 
@@ -15,6 +15,12 @@ distance from the crown centre. For K = 1, 2, ... trees, K spheres (centre, radi
 alternating assignment (each fruit to the sphere whose shell it lies closest to) and a linear least-squares sphere
 fit; K is chosen by BIC (a known spacing restricts K to the row length / spacing +- 1). A trunk is the xy of its
 sphere's centre.
+
+Which tree a fruit hangs on (:func:`assign_to_trees`): where canopies overlap, the midpoint between two trunks is
+not where one crown ends, a large crown reaches past it into a small neighbour's half. Each fruit goes to the crown
+shell it lies closest to: per tree a sphere fitted to the fruit, started from the nearest trunk and refitted until
+the assignment holds (``TreeConfig.assign: trunk`` keeps the nearest trunk; ``docs/results/orchard_rows.md``
+compares the two).
 """
 
 from __future__ import annotations
@@ -240,13 +246,53 @@ def find_trees(centers: np.ndarray, frame: RowFrame, config: TreeConfig = TreeCo
     return TreeMap(np.arange(1, len(centres) + 1), np.c_[xy, centres[:, 2]], 'data')
 
 
-def assign_to_trees(centers: np.ndarray, trees: TreeMap) -> np.ndarray:
-    """[N] index into ``trees`` of the nearest trunk (horizontal distance) of each fruit centre [N, 3]."""
+def _nearest_trunk(centers: np.ndarray, positions: np.ndarray) -> np.ndarray:
+    d = np.linalg.norm(centers[:, None, :2] - positions[None, :, :2], axis=2)
+    return np.argmin(d, axis=1)
+
+
+def _crown_shells(centers: np.ndarray, positions: np.ndarray, config: TreeConfig) -> np.ndarray:
+    """[N] tree index of each fruit: the crown shell it lies closest to, crowns refitted from the fruit.
+
+    Starts from the nearest trunk; each tree with ``crown_min_fruits`` or more gets a sphere fitted to its fruit
+    (radii within 0.8..1.25 x their median, as in :func:`_fit_from`); one with fewer a sphere of the median radius
+    on its trunk's vertical at its fruits' median height; then every fruit goes to the nearest shell, until the
+    assignment holds.
+    """
+    labels = _nearest_trunk(centers, positions)
+    k = len(positions)
+    for _ in range(config.iterations):
+        sizes = np.bincount(labels, minlength=k)
+        fitted = sizes >= config.crown_min_fruits
+        if not fitted.any():
+            return labels
+        centres, radii = np.zeros((k, 3)), np.zeros(k)
+        for j in np.flatnonzero(fitted):
+            members = centers[labels == j]
+            centres[j], radii[j] = _sphere_fit(members)
+            centres[j] = np.clip(centres[j], members.min(axis=0), members.max(axis=0))
+        median = float(np.median(radii[fitted]))
+        radii = np.where(fitted, np.clip(radii, 0.8 * median, 1.25 * median), median)
+        height = float(np.median(centres[fitted, 2]))
+        for j in np.flatnonzero(~fitted):
+            z = np.median(centers[labels == j, 2]) if sizes[j] else height
+            centres[j] = [positions[j, 0], positions[j, 1], z]
+        residual = np.abs(np.linalg.norm(centers[:, None, :] - centres[None], axis=2) - radii[None])
+        new = np.argmin(residual, axis=1)
+        if np.array_equal(new, labels):
+            break
+        labels = new
+    return labels
+
+
+def assign_to_trees(centers: np.ndarray, trees: TreeMap, config: TreeConfig = TreeConfig()) -> np.ndarray:
+    """[N] index into ``trees`` of each fruit centre [N, 3]: the nearest crown shell or trunk (``config.assign``)."""
     centers = np.asarray(centers, np.float64).reshape(-1, 3)
     if len(trees) == 0 or len(centers) == 0:
         return np.zeros(len(centers), np.int64)
-    d = np.linalg.norm(centers[:, None, :2] - trees.positions[None, :, :2], axis=2)
-    return np.argmin(d, axis=1)
+    if config.assign == 'trunk' or len(trees) == 1:
+        return _nearest_trunk(centers, trees.positions)
+    return _crown_shells(centers, trees.positions, config)
 
 
 def count_trees(trees: TreeMap, frame: RowFrame, fruit_centers: np.ndarray, fruit_diameters: np.ndarray,
@@ -258,7 +304,7 @@ def count_trees(trees: TreeMap, frame: RowFrame, fruit_centers: np.ndarray, frui
         counted: the stretch(es) of the row already counted (live: the finished segments); a tree is complete
             when its crown (trunk +- half the distance to its neighbours) plus ``complete_margin_m`` lies inside.
     """
-    index = assign_to_trees(fruit_centers, trees)
+    index = assign_to_trees(fruit_centers, trees, config)
     along = frame.along(trees.positions) if len(trees) else np.zeros(0)
     order = np.argsort(along)
     gaps = np.diff(along[order]) if len(trees) > 1 else np.zeros(0)

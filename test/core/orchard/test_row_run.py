@@ -18,7 +18,6 @@ from fruitnerfpp_ros.core.orchard.gnss import read_gnss_json
 from fruitnerfpp_ros.core.orchard.jobs import ATTEMPTS_NAME, InProcessRunner, SegmentJob
 from fruitnerfpp_ros.core.orchard.merge import SegmentFruits
 from fruitnerfpp_ros.core.orchard.row_run import RowResult, run_row
-from fruitnerfpp_ros.core.orchard.trees import assign_to_trees, read_planting_map
 
 
 def shown_fruits(gt_path: Path, fail: dict[int, int] | None = None) -> Callable[[SegmentJob], SegmentFruits]:
@@ -60,10 +59,9 @@ def test_every_fruit_once_on_its_nearest_trunk(row_dataset: Path, tmp_path: Path
     # every fruit of the row once, though neighbouring segments both counted the ones near their cut
     assert len(result.fruits) == len(centers) and int(result.fruits.matched.sum()) > 0
     assert np.allclose(np.sort(result.fruits.centers[:, 0]), np.sort(centers[:, 0]))
-    # one tree per trunk, each counting the fruits nearest to its trunk (= those grown on it in this row)
+    # one tree per trunk, each counting the fruits grown on it
     assert result.trees.source == ('data' if planting_map is None else 'planting_map') and len(result.trees) == 3
-    nearest = assign_to_trees(centers, read_planting_map(row_dataset / 'planting_map.csv'))
-    assert [t.count for t in result.tree_counts] == np.bincount(nearest, minlength=3).tolist()
+    assert [t.count for t in result.tree_counts] == np.bincount(grown_on - 1, minlength=3).tolist()
     assert np.abs(result.trees.positions[:, :2] - trunks[:, :2]).max() < 0.1
     evaluation = evaluate_row(row_dataset, result.fruits.centers, result.fruits.segments, result.fruit_trees,
                               result.trees.ids, result.trees.positions,
