@@ -13,7 +13,7 @@ import torch
 from fruitnerfpp_ros.core.data.rays import PixelBatch
 from fruitnerfpp_ros.errors import DatasetError
 
-__all__ = ['UniformPixelSampler', 'GroupInstanceSampler', 'ViewFruits', 'index_view_fruits']
+__all__ = ['UniformPixelSampler', 'GroupInstanceSampler', 'ViewFruits', 'index_view_fruits', 'mask_interior']
 
 
 class UniformPixelSampler:
@@ -79,6 +79,25 @@ class UniformPixelSampler:
             view = torch.cat([view, chosen // (self._height * self._width)])
             pixel = torch.cat([pixel, chosen % (self._height * self._width)])
         return PixelBatch(view, pixel // self._width, pixel % self._width)
+
+
+def mask_interior(instance_masks: torch.Tensor, fruit_masks: torch.Tensor) -> torch.Tensor:
+    """[V, H, W] bool: the fruit pixels whose four neighbours show the same fruit (beyond the image edge counts as
+    the same), and every pixel of a fruit that has no such pixel in its view (a fruit a few pixels wide keeps all).
+
+    Args:
+        instance_masks: [V, H, W] int instance ids, 0 = background.
+        fruit_masks: [V, H, W] bool fruit pixels (the sampler's; a pixel outside it is never kept).
+    """
+    ids = torch.nn.functional.pad(instance_masks[:, None].to(torch.int64), (1, 1, 1, 1), mode='replicate')[:, 0]
+    centre = ids[:, 1:-1, 1:-1]
+    interior = fruit_masks & (centre > 0)
+    for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
+        interior &= ids[:, dy:dy + centre.shape[1], dx:dx + centre.shape[2]] == centre
+    views = torch.arange(len(centre))[:, None, None].expand_as(centre)
+    key = views * (int(centre.max()) + 1) + centre                               # (view, fruit) as one number
+    lost = fruit_masks & ~torch.isin(key, key[interior])                         # fruits erosion would remove
+    return interior | lost
 
 
 @dataclass(frozen=True)

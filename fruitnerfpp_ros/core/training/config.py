@@ -136,6 +136,10 @@ class GeometryStageConfig(StageSchedule):
     colour there, so their fruit colour must come from inside the box, where the fruit region lies; with True the
     far field learned to paint the fruit behind a semi-transparent crown (lemon: 40 % of the fruit rays stayed
     below half opacity)."""
+    fruit_interior: bool = False
+    """Draw those fruit rays from the masks' interior only (:func:`~fruitnerfpp_ros.core.data.samplers.mask_interior`:
+    pixels whose four neighbours show the same fruit; a fruit without such a pixel keeps all of its). A fruit a
+    few pixels wide is mostly edge, and an edge pixel's colour mixes the fruit with what lies behind it."""
     opacity_entropy_weight: float = 0.0
     """Weight of the binary entropy of each uniform ray's opacity through the box: pushes a ray to either end in
     the box or pass it for the far field, not both (a semi-transparent tree with the far field seen through it).

@@ -17,7 +17,7 @@ import torch
 from torch import nn
 
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
-from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler
+from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler, mask_interior
 from fruitnerfpp_ros.core.progress import Phase
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.losses import opacity_entropy
@@ -99,8 +99,11 @@ class GeometryStage:
         self.config = config
         self.iterations = stage.iterations
         self.batch_rays = stage.batch_rays
+        fruit = dataset.semantic_masks
+        if getattr(stage, 'fruit_interior', False):  # the geometry stage's option (the semantic stage has none)
+            fruit = mask_interior(dataset.instance_masks, fruit)
         self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
-                                           fruit_masks=dataset.semantic_masks, fruit_fraction=stage.fruit_fraction,
+                                           fruit_masks=fruit, fruit_fraction=stage.fruit_fraction,
                                            valid_masks=dataset.valid_masks)
 
     @property

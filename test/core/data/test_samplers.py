@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler, index_view_fruits
+from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler, index_view_fruits, \
+    mask_interior
 
 
 def _blobs(relabel: torch.Tensor | None = None) -> torch.Tensor:
@@ -55,3 +56,25 @@ def test_sampler_is_invariant_to_relabelling() -> None:
     b = GroupInstanceSampler(torch.tensor([0, 1]), _blobs(perm), groups=2, group_size=3, pixels_per_fruit=4)
     ba, bb = a.sample(torch.Generator().manual_seed(3)), b.sample(torch.Generator().manual_seed(3))
     assert torch.equal(ba.row, bb.row) and torch.equal(ba.col, bb.col) and torch.equal(ba.fruit, bb.fruit)
+
+
+def test_mask_interior_drops_edges_and_keeps_fruits_too_small_for_an_interior() -> None:
+    ids = torch.zeros(2, 12, 12, dtype=torch.int32)
+    ids[0, 1:6, 1:6] = 1          # 5 x 5: its 3 x 3 core
+    ids[0, 1:6, 6:9] = 2          # 5 x 3, touching fruit 1: its middle column, not the shared edge
+    ids[0, 9:11, 3:5] = 3         # 2 x 2: no pixel with four fruit neighbours, so all four stay
+    ids[1, 0:3, 9:12] = 1         # in the corner: beyond the image counts as the same fruit
+    fruit = ids > 0
+    fruit[0, 3, 3] = False        # a pixel the sampler's mask leaves out is never kept
+    kept = mask_interior(ids, fruit)
+    expected = torch.zeros_like(fruit)
+    expected[0, 2:5, 2:5] = True
+    expected[0, 3, 3] = False
+    expected[0, 2:5, 7] = True
+    expected[0, 9:11, 3:5] = True
+    expected[1, 0:2, 10:12] = True
+    assert torch.equal(kept, expected)
+    sampler = UniformPixelSampler(torch.tensor([0, 1]), 12, 12, fruit_masks=kept, fruit_fraction=0.5)
+    batch = sampler.sample(400, torch.Generator().manual_seed(1))
+    fruit_part = slice(sampler.num_uniform(400), None)
+    assert bool(kept[batch.view[fruit_part], batch.row[fruit_part], batch.col[fruit_part]].all())
