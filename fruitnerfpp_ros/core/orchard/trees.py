@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.orchard.config import TreeConfig
 from fruitnerfpp_ros.core.orchard.georef import WorldGeoref
@@ -246,9 +247,11 @@ def find_trees(centers: np.ndarray, frame: RowFrame, config: TreeConfig = TreeCo
     return TreeMap(np.arange(1, len(centres) + 1), np.c_[xy, centres[:, 2]], 'data')
 
 
-def _nearest_trunk(centers: np.ndarray, positions: np.ndarray) -> np.ndarray:
-    d = np.linalg.norm(centers[:, None, :2] - positions[None, :, :2], axis=2)
-    return np.argmin(d, axis=1)
+def _nearest_trunks(centers: np.ndarray, positions: np.ndarray, k: int) -> np.ndarray:
+    """[N, k] indices of the ``k`` trunks nearest to each fruit (horizontal distance), nearest first."""
+    k = min(k, len(positions))
+    _, index = cKDTree(positions[:, :2]).query(centers[:, :2], k=k)
+    return np.asarray(index, np.int64).reshape(len(centers), k)
 
 
 def _crown_shells(centers: np.ndarray, positions: np.ndarray, config: TreeConfig) -> np.ndarray:
@@ -256,10 +259,11 @@ def _crown_shells(centers: np.ndarray, positions: np.ndarray, config: TreeConfig
 
     Starts from the nearest trunk; each tree with ``crown_min_fruits`` or more gets a sphere fitted to its fruit
     (radii within 0.8..1.25 x their median, as in :func:`_fit_from`); one with fewer a sphere of the median radius
-    on its trunk's vertical at its fruits' median height; then every fruit goes to the nearest shell, until the
-    assignment holds.
+    on its trunk's vertical at its fruits' median height; then every fruit goes to the nearest shell of the three
+    trees whose trunks are nearest to it, until the assignment holds.
     """
-    labels = _nearest_trunk(centers, positions)
+    candidates = _nearest_trunks(centers, positions, 3)                       # [N, C]
+    labels = candidates[:, 0]
     k = len(positions)
     for _ in range(config.iterations):
         sizes = np.bincount(labels, minlength=k)
@@ -277,8 +281,8 @@ def _crown_shells(centers: np.ndarray, positions: np.ndarray, config: TreeConfig
         for j in np.flatnonzero(~fitted):
             z = np.median(centers[labels == j, 2]) if sizes[j] else height
             centres[j] = [positions[j, 0], positions[j, 1], z]
-        residual = np.abs(np.linalg.norm(centers[:, None, :] - centres[None], axis=2) - radii[None])
-        new = np.argmin(residual, axis=1)
+        residual = np.abs(np.linalg.norm(centers[:, None, :] - centres[candidates], axis=2) - radii[candidates])
+        new = candidates[np.arange(len(centers)), np.argmin(residual, axis=1)]
         if np.array_equal(new, labels):
             break
         labels = new
@@ -291,7 +295,7 @@ def assign_to_trees(centers: np.ndarray, trees: TreeMap, config: TreeConfig = Tr
     if len(trees) == 0 or len(centers) == 0:
         return np.zeros(len(centers), np.int64)
     if config.assign == 'trunk' or len(trees) == 1:
-        return _nearest_trunk(centers, trees.positions)
+        return _nearest_trunks(centers, trees.positions, 1)[:, 0]
     return _crown_shells(centers, trees.positions, config)
 
 
