@@ -186,24 +186,41 @@ def _fit_k(p: np.ndarray, s: np.ndarray, k: int, config: TreeConfig
     return best
 
 
+def _crown_spheres(p: np.ndarray, labels: np.ndarray, k: int, min_fruits: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float | None]:
+    """One crown per label with at least ``min_fruits`` points: (centres [k, 3], radii [k], fitted [k], median).
+
+    A fitted crown is a least-squares sphere through its points, its centre kept within their bounds and its radius
+    within 0.8..1.25 x the median radius (trees of one row differ in size, not by factors: a sphere through a few
+    fruits of one crown is no tree); the rows of unfitted labels are zero, ``median`` None when none is fitted.
+    """
+    fitted = np.bincount(labels, minlength=k) >= min_fruits
+    centres, radii = np.zeros((k, 3)), np.zeros(k)
+    for j in np.flatnonzero(fitted):
+        members = p[labels == j]
+        centres[j], radii[j] = _sphere_fit(members)
+        centres[j] = np.clip(centres[j], members.min(axis=0), members.max(axis=0))
+    if not fitted.any():
+        return centres, radii, fitted, None
+    median = float(np.median(radii[fitted]))
+    radii[fitted] = np.clip(radii[fitted], 0.8 * median, 1.25 * median)
+    return centres, radii, fitted, median
+
+
 def _fit_from(p: np.ndarray, labels: np.ndarray, k: int, config: TreeConfig
               ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """:func:`_fit_k` from one initial assignment."""
     s = p[:, 0]
-    centres, radii = np.zeros((k, 3)), np.zeros(k)
+    centres = np.zeros((k, 3))
     residual = np.zeros((len(p), k))
+    radii = np.zeros(k)
     for _ in range(config.iterations):
-        sizes = np.bincount(labels, minlength=k)
-        for j in range(k):
-            members = p[labels == j]
-            if len(members) >= 6:
-                centres[j], radii[j] = _sphere_fit(members)
-                centres[j] = np.clip(centres[j], members.min(axis=0), members.max(axis=0))
-            elif len(members):
-                centres[j], radii[j] = np.median(members, axis=0), 0.0
-        fitted = sizes >= 6
-        median = float(np.median(radii[fitted])) if fitted.any() else float(np.ptp(s)) / (2 * k) + 1e-3
-        radii = np.where(fitted, np.clip(radii, 0.8 * median, 1.25 * median), median)
+        fit_c, radii, fitted, median = _crown_spheres(p, labels, k, 6)
+        centres[fitted] = fit_c[fitted]  # an empty label keeps its last centre
+        for j in np.flatnonzero(~fitted & (np.bincount(labels, minlength=k) > 0)):
+            centres[j] = np.median(p[labels == j], axis=0)
+        median = median if median is not None else float(np.ptp(s)) / (2 * k) + 1e-3
+        radii = np.where(fitted, radii, median)
         residual = np.abs(np.linalg.norm(p[:, None, :] - centres[None], axis=2) - radii[None])
         new = np.argmin(residual, axis=1)
         if np.array_equal(new, labels):
@@ -257,27 +274,21 @@ def _nearest_trunks(centers: np.ndarray, positions: np.ndarray, k: int) -> np.nd
 def _crown_shells(centers: np.ndarray, positions: np.ndarray, config: TreeConfig) -> np.ndarray:
     """[N] tree index of each fruit: the crown shell it lies closest to, crowns refitted from the fruit.
 
-    Starts from the nearest trunk; each tree with ``crown_min_fruits`` or more gets a sphere fitted to its fruit
-    (radii within 0.8..1.25 x their median, as in :func:`_fit_from`); one with fewer a sphere of the median radius
-    on its trunk's vertical at its fruits' median height; then every fruit goes to the nearest shell of the three
-    trees whose trunks are nearest to it, until the assignment holds.
+    Starts from the nearest trunk; each tree with ``crown_min_fruits`` or more gets a crown fitted to its fruit
+    (:func:`_crown_spheres`); one with fewer a sphere of the median radius on its trunk's vertical at its fruits'
+    median height; then every fruit goes to the nearest shell of the three trees whose trunks are nearest to it,
+    until the assignment holds.
     """
     candidates = _nearest_trunks(centers, positions, 3)                       # [N, C]
     labels = candidates[:, 0]
     k = len(positions)
     for _ in range(config.iterations):
-        sizes = np.bincount(labels, minlength=k)
-        fitted = sizes >= config.crown_min_fruits
-        if not fitted.any():
+        centres, radii, fitted, median = _crown_spheres(centers, labels, k, config.crown_min_fruits)
+        if median is None:
             return labels
-        centres, radii = np.zeros((k, 3)), np.zeros(k)
-        for j in np.flatnonzero(fitted):
-            members = centers[labels == j]
-            centres[j], radii[j] = _sphere_fit(members)
-            centres[j] = np.clip(centres[j], members.min(axis=0), members.max(axis=0))
-        median = float(np.median(radii[fitted]))
-        radii = np.where(fitted, np.clip(radii, 0.8 * median, 1.25 * median), median)
+        radii[~fitted] = median
         height = float(np.median(centres[fitted, 2]))
+        sizes = np.bincount(labels, minlength=k)
         for j in np.flatnonzero(~fitted):
             z = np.median(centers[labels == j, 2]) if sizes[j] else height
             centres[j] = [positions[j, 0], positions[j, 1], z]
