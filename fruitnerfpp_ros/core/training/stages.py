@@ -91,8 +91,11 @@ class GeometryStage:
 
     name: ClassVar[str] = 'geometry'
     updates_occupancy = True
-    fruit_rays_train_colour: ClassVar[bool] = True
-    """The fruit-drawn rays train the photometric loss (stage 1), or only the semantic head (stage 2)."""
+
+    @property
+    def fruit_rays_train_colour(self) -> bool:
+        """The fruit-drawn rays train the photometric loss (stage 1; stage 2 by its ``fruit_rays_colour``)."""
+        return True
 
     def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
         stage = getattr(config, self.name)  # this stage's section: iterations, batch_rays, fruit_fraction
@@ -146,6 +149,11 @@ class GeometryStage:
             entropy = opacity_entropy(out.opacity[:n_uniform])
             total = total + entropy_weight * entropy
             logged['opacity_entropy'] = entropy.detach()
+        opacity_weight = self.config.geometry.fruit_opacity_weight
+        if opacity_weight > 0 and self.fruit_rays_train_colour and len(pixels.view) > n_uniform:
+            transparency = (1.0 - out.opacity[n_uniform:].float()).square().mean()
+            total = total + opacity_weight * transparency
+            logged['fruit_transparency'] = transparency.detach()
         if target is not None:
             depth = model.depth_loss(out, target)
             total = total + self.config.depth.weight * depth
@@ -162,7 +170,10 @@ class SemanticStage(GeometryStage):
     """Stage 2: stage 1's losses on its uniform rays only, plus fruit BCE on every ray (uniform and fruit-biased)."""
 
     name: ClassVar[str] = 'semantic'
-    fruit_rays_train_colour: ClassVar[bool] = False
+
+    @property
+    def fruit_rays_train_colour(self) -> bool:
+        return self.config.semantic.fruit_rays_colour
 
     def param_groups(self, model: FruitNeRFModel) -> list[ParamGroup]:
         s = self.config.semantic
