@@ -144,10 +144,16 @@ class GeometryStageConfig(StageSchedule):
     """Weight of the binary entropy of each uniform ray's opacity through the box: pushes a ray to either end in
     the box or pass it for the far field, not both (a semi-transparent tree with the far field seen through it).
     0 = off."""
-    fruit_opacity_weight: float = 0.0
-    """Weight of the fruit rays' transparency through the box, mean (1 - opacity)^2 over the fruit-drawn rays: a
-    fruit pixel sees a solid fruit inside the box (the mask loss of object reconstruction, one-sided: a pixel
-    off the masks may see past the box). 0 = off."""
+    fruit_opacity_weight: float = 0.02
+    """Weight of the fruit rays' transparency through the box, mean (1 - opacity)^2 over stage 1's fruit-drawn
+    rays: a fruit pixel sees a solid fruit inside the box (the mask loss of object reconstruction, one-sided: a
+    pixel off the masks may see past the box). Without it a fruit ray's colour was half the background's (plum
+    row: median opacity 0.74; mango: 48 % below 0.9) and the fruits few views see got no density; 0.05 raised
+    the hemispheres more but added false fruit on the row drives (docs/results/accuracy_suite.md). 0 = off."""
+    fruit_opacity_interior: bool = False
+    """That term only on the fruit rays through a mask's interior (``mask_interior``: a fruit without interior
+    pixels keeps all of its): an edge pixel's colour mixes the fruit with what lies behind it, which may be past the
+    box."""
     pose_lr: float = 0.0
     """Adam learning rate of the per-view pose corrections (radians, metres; pose_refinement.py), trained in
     stages 1 and 2 and decayed like ``lr``; 0 = the recorded poses are used as they are."""
@@ -178,9 +184,6 @@ class SemanticStageConfig(StageSchedule):
     fruit_fraction: float = 0.25
     """Fraction of each batch drawn from fruit pixels (the rest uniformly): fruit is a few percent of an image. The
     photometric and distortion losses use the uniform part only."""
-    fruit_rays_colour: bool = False
-    """The fruit-drawn rays also train density and colour (and the fruit transparency loss), as in stage 1; False:
-    they train the semantic head only, and the geometry keeps training on the uniform rays alone."""
 
 
 @dataclass(frozen=True)

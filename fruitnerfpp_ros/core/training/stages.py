@@ -91,11 +91,9 @@ class GeometryStage:
 
     name: ClassVar[str] = 'geometry'
     updates_occupancy = True
-
-    @property
-    def fruit_rays_train_colour(self) -> bool:
-        """The fruit-drawn rays train the photometric loss (stage 1; stage 2 by its ``fruit_rays_colour``)."""
-        return True
+    fruit_rays_train_colour: ClassVar[bool] = True
+    """The fruit-drawn rays train the photometric loss and the transparency term (stage 1), or only the semantic
+    head (stage 2)."""
 
     def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
         stage = getattr(config, self.name)  # this stage's section: iterations, batch_rays, fruit_fraction
@@ -105,6 +103,9 @@ class GeometryStage:
         fruit = dataset.semantic_masks
         if getattr(stage, 'fruit_interior', False):  # the geometry stage's option (the semantic stage has none)
             fruit = mask_interior(dataset.instance_masks, fruit)
+        self.opaque_fruit = None  # [V, H, W] the fruit pixels the transparency term covers; None = all
+        if config.geometry.fruit_opacity_interior:
+            self.opaque_fruit = mask_interior(dataset.instance_masks, dataset.semantic_masks)
         self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
                                            fruit_masks=fruit, fruit_fraction=stage.fruit_fraction,
                                            valid_masks=dataset.valid_masks)
@@ -151,7 +152,13 @@ class GeometryStage:
             logged['opacity_entropy'] = entropy.detach()
         opacity_weight = self.config.geometry.fruit_opacity_weight
         if opacity_weight > 0 and self.fruit_rays_train_colour and len(pixels.view) > n_uniform:
-            transparency = (1.0 - out.opacity[n_uniform:].float()).square().mean()
+            clear = (1.0 - out.opacity[n_uniform:].float()).square()
+            if self.opaque_fruit is not None:
+                keep = self.opaque_fruit[pixels.view[n_uniform:], pixels.row[n_uniform:], pixels.col[n_uniform:]]
+                clear = clear * keep.to(clear.device, clear.dtype)
+                transparency = clear.sum() / keep.sum().clamp_min(1)
+            else:
+                transparency = clear.mean()
             total = total + opacity_weight * transparency
             logged['fruit_transparency'] = transparency.detach()
         if target is not None:
@@ -170,10 +177,7 @@ class SemanticStage(GeometryStage):
     """Stage 2: stage 1's losses on its uniform rays only, plus fruit BCE on every ray (uniform and fruit-biased)."""
 
     name: ClassVar[str] = 'semantic'
-
-    @property
-    def fruit_rays_train_colour(self) -> bool:
-        return self.config.semantic.fruit_rays_colour
+    fruit_rays_train_colour: ClassVar[bool] = False
 
     def param_groups(self, model: FruitNeRFModel) -> list[ParamGroup]:
         s = self.config.semantic

@@ -11,6 +11,7 @@ import torch
 from fruitnerfpp_ros.core.config_io import replace_nested
 from fruitnerfpp_ros.core.data.dataset import load_dataset
 from fruitnerfpp_ros.core.data.rays import PixelBatch
+from fruitnerfpp_ros.core.data.samplers import mask_interior
 from fruitnerfpp_ros.core.progress import ProgressEvent
 from fruitnerfpp_ros.core.training import RunDir, train
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
@@ -209,3 +210,75 @@ def test_fruit_rays_see_the_far_field_only_when_asked(parts: tuple, see_far_fiel
     semantic.losses(model, torch.Generator().manual_seed(2))
     n_uniform = geometry.sampler.num_uniform(geometry.batch_rays)
     assert seen == [None if see_far_field else n_uniform, None]  # stage 2's fruit rays train no colour
+
+
+def test_fruit_transparency_is_the_fruit_rays_mean_squared_transparency_and_weighted_only_when_asked(
+        parts: tuple) -> None:
+    dataset, model, stages = parts
+    assert REFINED.geometry.fruit_opacity_weight == 0.02  # on by default
+    off = build_stages(replace_nested(REFINED, {'geometry': {'fruit_opacity_weight': 0.0}}), dataset)[0].losses(
+        model, torch.Generator().manual_seed(4))
+    assert 'fruit_transparency' not in off.logged
+    weighted = replace_nested(REFINED, {'geometry': {'fruit_opacity_weight': 0.5}})
+    geometry = build_stages(weighted, dataset)[0]
+    on = geometry.losses(model, torch.Generator().manual_seed(4))
+    assert float(on.total) == pytest.approx(float(off.total + 0.5 * on.logged['fruit_transparency']), rel=1e-4)
+    generator = torch.Generator().manual_seed(4)  # the same draw as the stage's, rendered here
+    pixels = geometry.sampler.sample(geometry.batch_rays, generator)
+    jitter = torch.rand(len(pixels.view), generator=generator)
+    n_uniform = geometry.sampler.num_uniform(len(pixels.view))
+    with torch.no_grad():
+        opacity = model.render(pixels, jitter, colour=True, far_field_rays=n_uniform).opacity
+    expected = float(((1.0 - opacity[n_uniform:]) ** 2).mean())
+    assert expected > 1e-3  # an untrained field: the fruit rays are far from opaque
+    assert float(on.logged['fruit_transparency']) == pytest.approx(expected, rel=1e-3)
+    assert float(on.logged['fruit_transparency']) != pytest.approx(float(((1.0 - opacity) ** 2).mean()), rel=1e-3)
+
+
+def test_fruit_transparency_moves_the_density_towards_opaque_fruit_rays(parts: tuple) -> None:
+    dataset, model, _ = parts
+    geometry = build_stages(replace_nested(REFINED, {'geometry': {'fruit_opacity_weight': 1.0}}), dataset)[0]
+    params = list(model.field.geometry_parameters())
+    for p in params:
+        p.requires_grad_(True)
+    model.zero_grad(set_to_none=True)
+    before = geometry.losses(model, torch.Generator().manual_seed(9)).logged['fruit_transparency']
+    saved = [p.detach().clone() for p in params]
+    for _ in range(3):  # three signed-gradient steps of the transparency term alone (distortion: tiny, same way)
+        model.zero_grad(set_to_none=True)
+        step = geometry.losses(model, torch.Generator().manual_seed(9))
+        (step.total - step.logged['photo']).backward()
+        with torch.no_grad():
+            for p in params:
+                if p.grad is not None:
+                    p.sub_(1e-2 * p.grad.sign())
+    with torch.no_grad():
+        after = geometry.losses(model, torch.Generator().manual_seed(9)).logged['fruit_transparency']
+        for p, s in zip(params, saved):
+            p.copy_(s)
+    model.zero_grad(set_to_none=True)
+    assert float(after) < 0.9 * float(before)
+
+
+def test_fruit_transparency_on_the_interior_covers_only_interior_fruit_rays(parts: tuple) -> None:
+    dataset, model, _ = parts
+    config = replace_nested(REFINED, {'geometry': {'fruit_opacity_weight': 0.5, 'fruit_opacity_interior': True}})
+    geometry = build_stages(config, dataset)[0]
+    assert torch.equal(geometry.opaque_fruit, mask_interior(dataset.instance_masks, dataset.semantic_masks))
+    assert build_stages(REFINED, dataset)[0].opaque_fruit is None
+    # the sphere scene's fruits are a few pixels wide (no interior: all kept), so the term's selection is checked
+    # with a chequerboard of the fruit pixels in its place
+    rows, cols = torch.meshgrid(torch.arange(dataset.height), torch.arange(dataset.width), indexing='ij')
+    geometry.opaque_fruit = dataset.semantic_masks & ((rows + cols) % 2 == 0)[None]
+    generator = torch.Generator().manual_seed(12)
+    pixels = geometry.sampler.sample(geometry.batch_rays, generator)
+    jitter = torch.rand(len(pixels.view), generator=generator)
+    n_uniform = geometry.sampler.num_uniform(len(pixels.view))
+    kept = ((pixels.row[n_uniform:] + pixels.col[n_uniform:]) % 2 == 0)
+    assert 0 < int(kept.sum()) < len(kept)
+    with torch.no_grad():
+        opacity = model.render(pixels, jitter, colour=True, far_field_rays=n_uniform).opacity[n_uniform:]
+    expected = float(((1.0 - opacity[kept]) ** 2).mean())
+    logged = float(geometry.losses(model, torch.Generator().manual_seed(12)).logged['fruit_transparency'])
+    assert logged == pytest.approx(expected, rel=1e-3)
+    assert logged != pytest.approx(float(((1.0 - opacity) ** 2).mean()), rel=1e-3)
