@@ -3,8 +3,8 @@
 
 A fruit pixel sees a solid fruit inside the scene box, so its ray's opacity through the box should be 1. Each run
 directory given (``fruitnerfpp run`` / ``bench accuracy``'s ``<scene>/run``) is loaded from its checkpoint, up to
-``--per-view`` fruit pixels of every training view are drawn (seeded), their rays rendered through the box as
-stage 1 renders fruit rays (the background colour behind it, no far field), and the opacity's distribution printed:
+``--per-view`` fruit pixels of every training view are drawn (seeded), their rays' opacity through the box rendered
+(what stage 1's transparency term sees), and its distribution printed:
 mean (1 - opacity)^2 (the training term ``geometry.fruit_opacity_weight`` weighs), the share below 0.5 and 0.9, and
 the median. One thread; about a minute per run on the CPU.
 
@@ -22,12 +22,12 @@ import numpy as np
 import torch
 
 from fruitnerfpp_ros.core.data.dataset import load_dataset
-from fruitnerfpp_ros.core.data.rays import rays_for_pixels
+from fruitnerfpp_ros.core.data.rays import RayBundle, rays_for_pixels
 from fruitnerfpp_ros.core.rendering.renderer import render_rays
 from fruitnerfpp_ros.core.training import load_trained_scene
 
 
-def fruit_ray_opacity(run: Path, per_view: int, seed: int, chunk: int = 4096) -> np.ndarray:
+def fruit_ray_opacity(run: Path, per_view: int, seed: int) -> np.ndarray:
     """Box opacity [N] of up to ``per_view`` random fruit pixels' rays in every training view of ``run``."""
     scene = load_trained_scene(run, device='cpu')
     dataset = load_dataset(scene.dataset_dir, eval_every=scene.config.data.eval_every)
@@ -41,13 +41,13 @@ def fruit_ray_opacity(run: Path, per_view: int, seed: int, chunk: int = 4096) ->
         rows.append(pick[:, 0])
         cols.append(pick[:, 1])
     rays = rays_for_pixels(poses, dataset.intrinsics.float(), torch.cat(views), torch.cat(rows), torch.cat(cols))
+    chunk = scene.config.render.chunk_rays
     opacity = []
-    with torch.no_grad():
+    with torch.no_grad():  # the opacity through the box; no colour (nor what lies behind the box) needed
         for start in range(0, len(rays.origins), chunk):
-            part = type(rays)(rays.origins[start:start + chunk], rays.directions[start:start + chunk])
-            out = render_rays(scene.field, scene.occupancy, part, scene.render_settings, colour=True,
-                              far_field_rays=0)
-            opacity.append(out.opacity.float())
+            part = RayBundle(rays.origins[start:start + chunk], rays.directions[start:start + chunk])
+            opacity.append(render_rays(scene.field, scene.occupancy, part, scene.render_settings,
+                                       colour=False).opacity.float())
     return torch.cat(opacity).numpy()
 
 

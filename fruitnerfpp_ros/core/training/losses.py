@@ -5,7 +5,8 @@ from __future__ import annotations
 import torch
 import torch.nn.functional as F
 
-__all__ = ['photometric_loss', 'semantic_loss', 'opacity_entropy', 'prototype_infonce', 'fruit_prototypes']
+__all__ = ['photometric_loss', 'semantic_loss', 'opacity_entropy', 'fruit_transparency', 'prototype_infonce',
+           'fruit_prototypes']
 
 
 def photometric_loss(rgb: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -23,6 +24,16 @@ def opacity_entropy(opacity: torch.Tensor, eps: float = 1e-4) -> torch.Tensor:
     """Mean binary entropy (nats) of per-ray opacities [N]: 0 where a ray is opaque or clear, ln 2 at one half."""
     o = opacity.float().clamp(eps, 1.0 - eps)
     return -(o * torch.log(o) + (1.0 - o) * torch.log(1.0 - o)).mean()
+
+
+def fruit_transparency(opacity: torch.Tensor, keep: torch.Tensor | None = None) -> torch.Tensor:
+    """Mean (1 - opacity)^2 of fruit rays' opacities [N] through the box, over the rays ``keep`` [N] (bool) marks
+    (every ray when None; 0 when it marks none): a fruit pixel sees a solid fruit inside the box."""
+    clear = (1.0 - opacity.float()).square()
+    if keep is None:
+        return clear.mean()
+    keep = keep.to(clear.device, clear.dtype)
+    return (clear * keep).sum() / keep.sum().clamp_min(1.0)
 
 
 def fruit_prototypes(embeddings: torch.Tensor, labels: torch.Tensor, num_fruits: int) -> torch.Tensor:

@@ -20,7 +20,7 @@ from fruitnerfpp_ros.core.data.dataset import SceneDataset
 from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler, mask_interior
 from fruitnerfpp_ros.core.progress import Phase
 from fruitnerfpp_ros.core.training.config import TrainConfig
-from fruitnerfpp_ros.core.training.losses import opacity_entropy
+from fruitnerfpp_ros.core.training.losses import fruit_transparency, opacity_entropy
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 
 __all__ = ['ParamGroup', 'StepLosses', 'TrainingStage', 'GeometryStage', 'SemanticStage', 'InstanceStage',
@@ -103,8 +103,8 @@ class GeometryStage:
         fruit = dataset.semantic_masks
         if getattr(stage, 'fruit_interior', False):  # the geometry stage's option (the semantic stage has none)
             fruit = mask_interior(dataset.instance_masks, fruit)
-        self.opaque_fruit = None  # [V, H, W] the fruit pixels the transparency term covers; None = all
-        if config.geometry.fruit_opacity_interior:
+        self.opaque_fruit = None  # [V, H, W] the fruit pixels the transparency term covers (stage 1); None = all
+        if self.fruit_rays_train_colour and config.geometry.fruit_opacity_interior:
             self.opaque_fruit = mask_interior(dataset.instance_masks, dataset.semantic_masks)
         self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
                                            fruit_masks=fruit, fruit_fraction=stage.fruit_fraction,
@@ -152,13 +152,9 @@ class GeometryStage:
             logged['opacity_entropy'] = entropy.detach()
         opacity_weight = self.config.geometry.fruit_opacity_weight
         if opacity_weight > 0 and self.fruit_rays_train_colour and len(pixels.view) > n_uniform:
-            clear = (1.0 - out.opacity[n_uniform:].float()).square()
-            if self.opaque_fruit is not None:
-                keep = self.opaque_fruit[pixels.view[n_uniform:], pixels.row[n_uniform:], pixels.col[n_uniform:]]
-                clear = clear * keep.to(clear.device, clear.dtype)
-                transparency = clear.sum() / keep.sum().clamp_min(1)
-            else:
-                transparency = clear.mean()
+            keep = None if self.opaque_fruit is None else \
+                self.opaque_fruit[pixels.view[n_uniform:], pixels.row[n_uniform:], pixels.col[n_uniform:]]
+            transparency = fruit_transparency(out.opacity[n_uniform:], keep)
             total = total + opacity_weight * transparency
             logged['fruit_transparency'] = transparency.detach()
         if target is not None:

@@ -7,7 +7,8 @@ import math
 import pytest
 import torch
 
-from fruitnerfpp_ros.core.training.losses import opacity_entropy, photometric_loss, prototype_infonce, semantic_loss
+from fruitnerfpp_ros.core.training.losses import (fruit_transparency, opacity_entropy, photometric_loss,
+                                                  prototype_infonce, semantic_loss)
 
 
 def test_bce_of_three_pixels() -> None:
@@ -47,3 +48,11 @@ def test_prototype_infonce_of_three_pixels() -> None:
     # scaling an embedding changes nothing (it is normalised inside)
     assert float(prototype_infonce(emb * torch.tensor([[3.0], [1.0], [0.5]]), labels, tau)) == pytest.approx(
         expected / 3, rel=1e-5)
+
+
+def test_fruit_transparency_is_the_mean_squared_transparency_of_the_kept_rays() -> None:
+    opacity = torch.tensor([1.0, 0.5, 0.0, 0.9])
+    assert float(fruit_transparency(opacity)) == pytest.approx((0.0 + 0.25 + 1.0 + 0.01) / 4)
+    keep = torch.tensor([True, False, True, False])
+    assert float(fruit_transparency(opacity, keep)) == pytest.approx(0.5)
+    assert float(fruit_transparency(opacity, torch.zeros(4, dtype=torch.bool))) == 0.0
