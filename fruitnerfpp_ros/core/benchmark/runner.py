@@ -55,6 +55,8 @@ class SuiteOptions:
     """Scenes run at once, each in its own process."""
     config_file: str = ''
     """The pipeline config file the configs came from ('' = none); bag replays read it as ``config_file``."""
+    peer_beside_ours: bool | None = None
+    """The tracking peer in a process of its own while ours trains; None: on a CUDA device (``SceneJob``)."""
 
     def __post_init__(self) -> None:
         if self.masks not in MASK_SOURCES:
@@ -116,7 +118,8 @@ def run_suite(suite: str, scenes: Sequence[SuiteScene], out_dir: str | Path, opt
     started_utc = datetime.now(timezone.utc).strftime('%Y-%m-%dT%H:%M:%SZ')
     started = time.perf_counter()
     jobs = [SceneJob(scene, out_dir, options.masks, options.device, options.preset, options.train_config,
-                     options.export_config, options.cluster_config, options.config_file, bag_runner)
+                     options.export_config, options.cluster_config, options.config_file, bag_runner,
+                     options.peer_beside_ours)
             for scene in scenes]
     done: dict[str, SceneResult] = {}
     commit = git_commit()

@@ -94,6 +94,9 @@ class SceneJob:
     """The ``--config`` pipeline file, for the bag replay's ``config_file`` parameter ('' = none)."""
     bag_runner: BagRunner | None = None
     """Runs a bag replay; required by ``via_bag`` scenes."""
+    peer_beside_ours: bool | None = None
+    """Run the tracking peer in a process of its own while ours trains (dataset scenes); None: on a CUDA device, where
+    ours leaves the CPU cores idle (on the CPU suites both would share the scene's one core and its times)."""
 
 
 @dataclass
@@ -216,10 +219,8 @@ def _pipeline_figures(result: PipelineResult, record: _Record) -> None:
 
 def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
     """Every step of the scene; raises only when nothing can be scored (no scene)."""
-    from fruitnerfpp_ros.core.data.transforms_format import read_transforms
     from fruitnerfpp_ros.core.device import use_cpu_threads
     from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
-    from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
     from fruitnerfpp_ros.core.synthetic import generate_orchard
 
     config = job.scene.synth_config(job.device)
@@ -236,7 +237,42 @@ def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
         with record.timed('segment'):
             segment_dataset(data_dir, build_segmenter(SegmenterConfig(method='fallback')), overwrite=True)
 
-    pipeline, counted_dir = None, scene_dir / 'run' / 'keyframes' if job.scene.via_bag else data_dir
+    counted_dir = scene_dir / 'run' / 'keyframes' if job.scene.via_bag else data_dir
+    with contextlib.ExitStack() as stack:
+        peer = None
+        if _peer_beside_ours(job):  # the GPU trains while a CPU process tracks (300 views of 512 px: ~2 min)
+            from concurrent.futures import ProcessPoolExecutor
+            from multiprocessing import get_context
+            pool = stack.enter_context(ProcessPoolExecutor(max_workers=1, mp_context=get_context('spawn')))
+            peer = pool.submit(_timed_tracking, data_dir)
+        _score_scene(job, scene_dir, data_dir, counted_dir, record, config, synth, peer)
+
+
+def _peer_beside_ours(job: SceneJob) -> bool:
+    """Whether the tracking peer runs beside ours (see ``SceneJob.peer_beside_ours``); a bag scene's peer counts the
+    keyframes its replay collects, so it waits for them."""
+    if job.scene.via_bag:
+        return False
+    if job.peer_beside_ours is not None:
+        return job.peer_beside_ours
+    from fruitnerfpp_ros.core.device import resolve_device
+    return resolve_device(job.device).type == 'cuda'
+
+
+def _timed_tracking(counted_dir: Path) -> tuple[Any, float]:
+    """The tracking peer's count of a dataset and its wall time (s)."""
+    from fruitnerfpp_ros.core.tracking import track_dataset
+    started = time.perf_counter()
+    tracked = track_dataset(counted_dir)
+    return tracked, time.perf_counter() - started
+
+
+def _score_scene(job: SceneJob, scene_dir: Path, data_dir: Path, counted_dir: Path, record: _Record,
+                 config: Any, synth: Any, peer: Any) -> None:
+    """Ours, then the peer (``peer``: its future when it already runs beside ours), both scored."""
+    from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+    from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
+    pipeline = None
     try:
         pipeline, counted_dir = _count_ours(job, scene_dir, data_dir, record, config)
         _pipeline_figures(pipeline, record)
@@ -255,9 +291,11 @@ def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
         except Exception as err:  # noqa: BLE001
             record.fail('picture', err)
     try:
-        from fruitnerfpp_ros.core.tracking import track_dataset, write_track_counts
-        with record.timed('tracking'):
-            tracked = track_dataset(counted_dir)
+        from fruitnerfpp_ros.core.tracking import write_track_counts
+        if peer is not None:
+            tracked, record.times['tracking'] = peer.result()
+        else:
+            tracked, record.times['tracking'] = _timed_tracking(counted_dir)
         write_track_counts(scene_dir / TRACK_COUNTS, tracked, source=str(counted_dir))
         record.values['peer'] = CounterScore.from_metrics(evaluate_counts(tracked.centers(), gt))
     except Exception as err:  # noqa: BLE001

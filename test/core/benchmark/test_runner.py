@@ -33,14 +33,19 @@ def _options(**values: object) -> SuiteOptions:
 
 
 def test_one_micro_scene_end_to_end_and_a_failing_one(tmp_path: Path) -> None:
+    """The micro scene's peer runs beside ours (as on a GPU; test/cli/test_bench.py runs it after ours)."""
+    from fruitnerfpp_ros.core.tracking import track_dataset
+
     finished: list[str] = []
-    suite = run_suite('test', [MICRO, BAD], tmp_path, _options(jobs=2), command='fruitnerfpp bench ...',
+    suite = run_suite('test', [MICRO, BAD], tmp_path, _options(jobs=2, peer_beside_ours=True),
+                      command='fruitnerfpp bench ...',
                       on_scene_done=lambda result: finished.append(result.name))
     assert sorted(finished) == ['bad', 'micro'] and [s.name for s in suite.scenes] == ['micro', 'bad']
     micro, bad = suite.scenes
     assert micro.ok, micro.error
     assert micro.gt_count == 8 and 0 < micro.gt_seen <= 8 and micro.n_views == 12
     assert micro.ours is not None and micro.peer is not None and micro.peer.count >= 1
+    assert micro.peer.count == len(track_dataset(tmp_path / 'micro' / 'data').centers())
     assert 0.0 <= micro.ours.f1 <= 1.0 and 0.0 <= micro.peer.f1 <= 1.0
     assert math.isfinite(micro.psnr_db) and micro.box_size_m is not None and micro.voxel_mm > 0
     assert 0.05 < micro.gt_diameter_m < 0.1 and micro.diameter_m > 0 and micro.peak_rss_mb > 100

@@ -7,10 +7,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch
 
 from fruitnerfpp_ros.core.data.bounds import aabb_from_cameras
 from fruitnerfpp_ros.core.data.dataset import load_dataset
-from fruitnerfpp_ros.core.data.scene_scale import ScaleConfig, estimate_scene_scale
+from fruitnerfpp_ros.core.data.scene_scale import ScaleConfig, estimate_scene_scale, largest_eigenvalue_sym3
 from fruitnerfpp_ros.errors import ConfigError
 from test.core.training.stand_in_scene import make_sphere_scene
 
@@ -98,3 +99,38 @@ def test_fruit_hidden_in_foliage_stays_inside_the_region(tmp_path: Path) -> None
     assert inside(held.fruit_region) >= 0.95 and inside(strict.fruit_region) < inside(held.fruit_region)
     assert np.all(held.fruit_region[1] - held.fruit_region[0] < centres.max(0) - centres.min(0) + 0.6)
     assert held.fruit_diameter_m == pytest.approx(strict.fruit_diameter_m, rel=0.1)
+
+
+def test_the_closed_form_largest_eigenvalue_matches_lapack_on_every_kind_of_matrix() -> None:
+    """Mean outer products of unit directions (what the view-spread test feeds it) and the degenerate cases: all
+    views on one line (rank 1, eigenvalue 1), a plane (rank 2), isotropic (a multiple of the identity)."""
+    rng = np.random.default_rng(3)
+    dirs = rng.normal(size=(500, 7, 3))
+    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+    dirs[:100] = dirs[:100, :1]                               # one line
+    dirs[100:200, :, 2] = 0.0                                 # one plane
+    dirs[100:200] /= np.linalg.norm(dirs[100:200], axis=2, keepdims=True)
+    matrices = np.einsum('nki,nkj->nij', dirs, dirs) / dirs.shape[1]
+    matrices = np.concatenate([matrices, np.eye(3)[None] / 3.0, np.zeros((1, 3, 3)), 2.0 * rng.normal(size=(50, 3, 3))])
+    matrices[-50:] = matrices[-50:] + matrices[-50:].transpose(0, 2, 1)   # symmetric, indefinite
+    six = torch.as_tensor(matrices[:, [0, 1, 2, 0, 0, 1], [0, 1, 2, 1, 2, 2]], dtype=torch.float32)
+    got = largest_eigenvalue_sym3(six).double().numpy()
+    assert got.dtype == np.float64 and largest_eigenvalue_sym3(six).dtype == torch.float32
+    np.testing.assert_allclose(got, np.linalg.eigvalsh(matrices)[:, -1], atol=2e-5)
+    np.testing.assert_allclose(got[:100], 1.0, atol=2e-5)
+
+
+def test_the_view_spread_needs_no_batched_solver(tiny_apple_dataset: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """On CUDA the batched ``torch.linalg.eigvalsh`` over a 300-view 512 px scene's voxels raised a cusolver
+    internal error before any training (the `gpu` suite, 2026-12-04): the estimate must not depend on it."""
+    dataset = load_dataset(tiny_apple_dataset, eval_every=8)
+    expected = estimate_scene_scale(dataset, _search_box(dataset))
+
+    def cusolver_failure(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        raise RuntimeError('cusolver error: CUSOLVER_STATUS_INTERNAL_ERROR')
+
+    monkeypatch.setattr(torch.linalg, 'eigvalsh', cusolver_failure)
+    monkeypatch.setattr(torch.linalg, 'eigh', cusolver_failure)
+    scale = estimate_scene_scale(dataset, _search_box(dataset))
+    assert scale.source == 'masks' and scale.n_fruit_voxels == expected.n_fruit_voxels
+    np.testing.assert_allclose(scale.fruit_region, expected.fruit_region)
