@@ -1,0 +1,82 @@
+#!/usr/bin/env python3
+"""How far apart, and how alike in embedding, are the counted clusters that halve one true fruit, against pairs of
+two true fruits: the evidence behind the caps' join (``merge_agreeing_m`` / ``merge_agreeing_cos``).
+
+For every pair of counted clusters whose centres lie within ``--reach`` median true diameters of each other and
+each within one diameter of a true fruit: the cosine of the two clusters' mean unit embeddings, filed under "halves
+of one fruit" when both are nearest the same true fruit, else "two fruits". Reads suite directories
+(``DIR/<scene>/run`` with ``DIR/<scene>/data/gt_fruits.json``) and orchard runs (``RUN/segments/seg_*/run``, with
+``--gt DATASET/gt_fruits.json``).
+
+Usage::
+
+    python bench/cap_pairs.py SUITE_DIR... [--reach 1.5]
+    python bench/cap_pairs.py RUN --gt row5/gt_fruits.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+
+def _runs(paths: list[Path], gt: Path | None) -> Iterator[tuple[Path, Path]]:
+    for path in paths:
+        if (path / 'segments').is_dir():
+            if gt is None:
+                raise SystemExit(f'{path}: an orchard run needs --gt')
+            yield from ((seg / 'run', gt) for seg in sorted((path / 'segments').glob('seg_*')))
+        else:
+            yield from ((run, run.parent / 'data' / 'gt_fruits.json') for run in sorted(path.glob('*/run')))
+
+
+def _pair_cosines(run: Path, gt_path: Path, reach: float) -> tuple[list[float], list[float]]:
+    fruits = json.loads(gt_path.read_text())['fruits']
+    centres = np.array([f['center'] for f in fruits])
+    diameters = np.array([f['diameter'] for f in fruits])
+    counted = json.loads((run / 'counts.json').read_text())['fruits']
+    if len(counted) < 2:
+        return [], []
+    xyz = np.array([f['center'] for f in counted])
+    cloud = np.load(run / 'cloud.npz')
+    labels, emb = cloud['labels'], cloud['embedding']
+    means = np.stack([emb[labels == f['id']].mean(0) for f in counted])
+    means /= np.linalg.norm(means, axis=1, keepdims=True)
+    dist = np.linalg.norm(xyz[:, None] - centres[None], axis=2)
+    nearest = dist.argmin(1)
+    near = dist[np.arange(len(xyz)), nearest] <= diameters[nearest]
+    close = np.linalg.norm(xyz[:, None] - xyz[None], axis=2) <= reach * float(np.median(diameters))
+    i, j = np.nonzero(np.triu(close, 1) & near[:, None] & near[None])
+    cosine = np.einsum('nd,nd->n', means[i], means[j])
+    same = nearest[i] == nearest[j]
+    return cosine[same].tolist(), cosine[~same].tolist()
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument('runs', type=Path, nargs='+')
+    parser.add_argument('--gt', type=Path, help="an orchard run's gt_fruits.json")
+    parser.add_argument('--reach', type=float, default=1.5, help='pair reach in median true diameters')
+    args = parser.parse_args()
+    halves: list[float] = []
+    two: list[float] = []
+    for run, gt in _runs(args.runs, args.gt):
+        if (run / 'cloud.npz').is_file() and (run / 'counts.json').is_file() and gt.is_file():
+            same, other = _pair_cosines(run, gt, args.reach)
+            halves += same
+            two += other
+    for name, values in (('halves of one fruit', halves), ('two fruits', two)):
+        v = np.asarray(values)
+        quantiles = np.round(np.percentile(v, [10, 50, 90, 95]), 2).tolist() if len(v) else []
+        print(f'{name}: {len(v)} pairs, cosine 10/50/90/95th percentiles {quantiles}')
+    for threshold in (0.9, 0.8, 0.7, 0.6):
+        print(f'cosine >= {threshold}: halves {np.mean(np.asarray(halves) >= threshold) if halves else 0:.2f}, '
+              f'two fruits {int((np.asarray(two) >= threshold).sum())} of {len(two)}')
+
+
+if __name__ == '__main__':
+    main()
