@@ -29,6 +29,8 @@ from fruitnerfpp_ros.core.benchmark.result import CounterScore, SceneResult
 from fruitnerfpp_ros.core.benchmark.suites import SuiteScene
 
 if TYPE_CHECKING:  # torch stays unimported until a scene runs
+    from concurrent.futures import Future
+
     from fruitnerfpp_ros.core.clustering.config import ClusterConfig
     from fruitnerfpp_ros.core.evaluation.ground_truth import GroundTruth
     from fruitnerfpp_ros.core.export.config import ExportConfig
@@ -268,7 +270,7 @@ def _timed_tracking(counted_dir: Path) -> tuple[Any, float]:
 
 
 def _score_scene(job: SceneJob, scene_dir: Path, data_dir: Path, counted_dir: Path, record: _Record,
-                 config: Any, synth: Any, peer: Any) -> None:
+                 config: SynthConfig, synth: Any, peer: Future[tuple[Any, float]] | None) -> None:
     """Ours, then the peer (``peer``: its future when it already runs beside ours), both scored."""
     from fruitnerfpp_ros.core.data.transforms_format import read_transforms
     from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts

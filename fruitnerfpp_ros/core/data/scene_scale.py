@@ -186,7 +186,7 @@ def largest_eigenvalue_sym3(m: torch.Tensor) -> torch.Tensor:
 
     The trigonometric solution of the characteristic cubic (Smith 1961), computed in float64 and returned in the
     input's dtype. Elementwise, so it runs alike on every device: the batched ``torch.linalg.eigvalsh`` failed on
-    CUDA (cusolver internal error) for the ~10^5 voxels of a 300-view 512 px scene.
+    CUDA (cusolver internal error) over the fine vote's voxels of a 300-view 512 px scene.
     """
     a = m.double()
     xx, yy, zz, xy, xz, yz = a.unbind(1)
