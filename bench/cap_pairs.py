@@ -2,9 +2,10 @@
 """How far apart, and how alike in embedding, are the counted clusters that halve one true fruit, against pairs of
 two true fruits: the evidence behind the caps' join (``merge_agreeing_m`` / ``merge_agreeing_cos``).
 
-For every pair of counted clusters whose centres lie within ``--reach`` median true diameters of each other and
-each within one diameter of a true fruit: the cosine of the two clusters' mean unit embeddings, filed under "halves
-of one fruit" when both are nearest the same true fruit, else "two fruits". Reads suite directories
+For every pair of counted clusters (a run's labelled cloud) whose median centres lie within ``--reach`` median true
+diameters of each other and each within one diameter of a true fruit: the cosine of the two clusters' mean unit
+embeddings (the pairs and cosines the join itself weighs), filed under "halves of one fruit" when both are nearest
+the same true fruit, else "two fruits". Reads suite directories
 (``DIR/<scene>/run`` with ``DIR/<scene>/data/gt_fruits.json``) and orchard runs (``RUN/segments/seg_*/run``, with
 ``--gt DATASET/gt_fruits.json``).
 
@@ -17,11 +18,14 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+
+from fruitnerfpp_ros.core.clustering.merge import close_pair_cosines
+from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
+from fruitnerfpp_ros.core.export.npz_io import read_cloud
 
 
 def _runs(paths: list[Path], gt: Path | None) -> Iterator[tuple[Path, Path]]:
@@ -35,25 +39,20 @@ def _runs(paths: list[Path], gt: Path | None) -> Iterator[tuple[Path, Path]]:
 
 
 def _pair_cosines(run: Path, gt_path: Path, reach: float) -> tuple[list[float], list[float]]:
-    fruits = json.loads(gt_path.read_text())['fruits']
-    centres = np.array([f['center'] for f in fruits])
-    diameters = np.array([f['diameter'] for f in fruits])
-    counted = json.loads((run / 'counts.json').read_text())['fruits']
-    if len(counted) < 2:
+    """(cosines of the pairs halving one true fruit, of the pairs of two fruits) in one run's counted cloud, the
+    pairs and cosines being those the caps' join weighs (:func:`close_pair_cosines`)."""
+    gt = load_ground_truth(gt_path)
+    cloud, labels = read_cloud(run / 'cloud.npz')
+    if labels is None or not np.any(labels > 0):
         return [], []
-    xyz = np.array([f['center'] for f in counted])
-    cloud = np.load(run / 'cloud.npz')
-    labels, emb = cloud['labels'], cloud['embedding']
-    means = np.stack([emb[labels == f['id']].mean(0) for f in counted])
-    means /= np.linalg.norm(means, axis=1, keepdims=True)
-    dist = np.linalg.norm(xyz[:, None] - centres[None], axis=2)
+    _, centres, pairs, cosine = close_pair_cosines(cloud.xyz, cloud.embedding, labels.astype(np.int64) - 1,
+                                                   reach * float(np.median(gt.diameters)))
+    dist = np.linalg.norm(centres[:, None] - gt.centers[None], axis=2)
     nearest = dist.argmin(1)
-    near = dist[np.arange(len(xyz)), nearest] <= diameters[nearest]
-    close = np.linalg.norm(xyz[:, None] - xyz[None], axis=2) <= reach * float(np.median(diameters))
-    i, j = np.nonzero(np.triu(close, 1) & near[:, None] & near[None])
-    cosine = np.einsum('nd,nd->n', means[i], means[j])
-    same = nearest[i] == nearest[j]
-    return cosine[same].tolist(), cosine[~same].tolist()
+    near = dist[np.arange(len(centres)), nearest] <= gt.diameters[nearest]
+    both = near[pairs[:, 0]] & near[pairs[:, 1]]
+    same = nearest[pairs[:, 0]] == nearest[pairs[:, 1]]
+    return cosine[both & same].tolist(), cosine[both & ~same].tolist()
 
 
 def main() -> None:
@@ -65,7 +64,7 @@ def main() -> None:
     halves: list[float] = []
     two: list[float] = []
     for run, gt in _runs(args.runs, args.gt):
-        if (run / 'cloud.npz').is_file() and (run / 'counts.json').is_file() and gt.is_file():
+        if (run / 'cloud.npz').is_file() and gt.is_file():
             same, other = _pair_cosines(run, gt, args.reach)
             halves += same
             two += other

@@ -247,7 +247,7 @@ def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
             from multiprocessing import get_context
             pool = stack.enter_context(ProcessPoolExecutor(max_workers=1, mp_context=get_context('spawn')))
             peer = pool.submit(_timed_tracking, data_dir)
-        _score_scene(job, scene_dir, data_dir, counted_dir, record, config, synth, peer)
+        _score_scene(job, scene_dir, data_dir, counted_dir, record, config, synth.gt_path, peer)
 
 
 def _peer_beside_ours(job: SceneJob) -> bool:
@@ -270,7 +270,7 @@ def _timed_tracking(counted_dir: Path) -> tuple[Any, float]:
 
 
 def _score_scene(job: SceneJob, scene_dir: Path, data_dir: Path, counted_dir: Path, record: _Record,
-                 config: SynthConfig, synth: Any, peer: Future[tuple[Any, float]] | None) -> None:
+                 config: SynthConfig, gt_path: Path, peer: Future[tuple[Any, float]] | None) -> None:
     """Ours, then the peer (``peer``: its future when it already runs beside ours), both scored."""
     from fruitnerfpp_ros.core.data.transforms_format import read_transforms
     from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
@@ -281,7 +281,7 @@ def _score_scene(job: SceneJob, scene_dir: Path, data_dir: Path, counted_dir: Pa
     except Exception as err:  # noqa: BLE001 - reported in the scene's row; the peer still runs
         record.fail('ours', err)
     record.values['n_views'] = len(read_transforms(counted_dir).frames)
-    gt = scored_ground_truth(synth.gt_path, counted_dir, scene_dir / 'run', job.train_config.data.eval_every)
+    gt = scored_ground_truth(gt_path, counted_dir, scene_dir / 'run', job.train_config.data.eval_every)
     record.values['gt_seen'] = int(gt.seen.sum())
     if pipeline is not None:
         metrics = evaluate_counts(pipeline.count.centers(), gt)

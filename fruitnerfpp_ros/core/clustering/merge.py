@@ -15,7 +15,8 @@ from scipy.spatial import cKDTree
 from fruitnerfpp_ros.core.clustering.count_result import label_groups
 from fruitnerfpp_ros.core.clustering.partitions import assign_to_cells
 
-__all__ = ['keep_owned_clusters', 'merge_clusters', 'merge_close_centers', 'merge_agreeing_neighbours']
+__all__ = ['keep_owned_clusters', 'merge_clusters', 'merge_close_centers', 'merge_agreeing_neighbours',
+           'close_pair_cosines']
 
 
 def keep_owned_clusters(xyz: np.ndarray, members: np.ndarray, local_labels: np.ndarray, partition: int,
@@ -91,7 +92,7 @@ def merge_close_centers(xyz: np.ndarray, labels: np.ndarray, distance_m: float) 
     """
     if distance_m <= 0 or not np.any(labels >= 0):
         return labels
-    ids, _, pairs = _close_cluster_pairs(xyz, labels, distance_m)
+    ids, _, _, pairs = _close_cluster_pairs(xyz, labels, distance_m)
     return _join_pairs(labels, ids[pairs[:, 0]], ids[pairs[:, 1]])
 
 
@@ -116,23 +117,31 @@ def merge_agreeing_neighbours(xyz: np.ndarray, embedding: np.ndarray, labels: np
     """
     if reach_m <= 0 or not np.any(labels >= 0):
         return labels
-    ids, groups, pairs = _close_cluster_pairs(xyz, labels, reach_m)
+    ids, _, pairs, cosine = close_pair_cosines(xyz, embedding, labels, reach_m)
+    pairs = pairs[cosine >= min_cosine]
+    return _join_pairs(labels, ids[pairs[:, 0]], ids[pairs[:, 1]])
+
+
+def close_pair_cosines(xyz: np.ndarray, embedding: np.ndarray, labels: np.ndarray,
+                       reach_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The cluster pairs :func:`merge_agreeing_neighbours` weighs: (the K cluster ids, their [K, 3] median centres,
+    [P, 2] pairs of positions in the ids whose centres lie within ``reach_m``, [P] cosine of each pair's mean unit
+    embeddings). ``labels``: [N], -1 noise; at least one cluster."""
+    ids, groups, centers, pairs = _close_cluster_pairs(xyz, labels, reach_m)
     unit = np.asarray(embedding, np.float64)
     unit = unit / np.maximum(np.linalg.norm(unit, axis=1, keepdims=True), 1e-12)
     mean = np.array([unit[g].mean(axis=0) for g in groups])
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
-    agree = np.einsum('ij,ij->i', mean[pairs[:, 0]], mean[pairs[:, 1]]) >= min_cosine
-    pairs = pairs[agree]
-    return _join_pairs(labels, ids[pairs[:, 0]], ids[pairs[:, 1]])
+    return ids, centers, pairs, np.einsum('ij,ij->i', mean[pairs[:, 0]], mean[pairs[:, 1]])
 
 
 def _close_cluster_pairs(xyz: np.ndarray, labels: np.ndarray,
-                         reach_m: float) -> tuple[np.ndarray, list[np.ndarray], np.ndarray]:
-    """(cluster ids, each cluster's point indices, [P, 2] pairs of positions in ``ids`` whose clusters' median
-    centres lie within ``reach_m``)."""
+                         reach_m: float) -> tuple[np.ndarray, list[np.ndarray], np.ndarray, np.ndarray]:
+    """(cluster ids, each cluster's point indices, their [K, 3] median centres, [P, 2] pairs of positions in
+    ``ids`` whose clusters' median centres lie within ``reach_m``)."""
     ids, groups = label_groups(labels)
     centers = np.array([np.median(xyz[g], axis=0) for g in groups])
-    return ids, groups, cKDTree(centers).query_pairs(reach_m, output_type='ndarray')
+    return ids, groups, centers, cKDTree(centers).query_pairs(reach_m, output_type='ndarray')
 
 
 def _join_pairs(labels: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
