@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from dataclasses import field as _field
 from typing import Any
 
+from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignmentConfig
 from fruitnerfpp_ros.core.data.scene_scale import ScaleConfig
 from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, HashGridConfig
 from fruitnerfpp_ros.core.preset_names import PRESET_NAMES  # noqa: F401 - re-exported
@@ -293,6 +294,9 @@ class TrainConfig:
     """Adam settings."""
     depth: DepthConfig = _field(default_factory=DepthConfig)
     """Depth supervision, when the dataset has depth images."""
+    pose_alignment: PoseAlignmentConfig = _field(default_factory=PoseAlignmentConfig)
+    """Feature tracks and a bundle adjustment of the recorded poses before training (core/data/pose_alignment.py):
+    the start of the geometry stage's pose corrections."""
     seed: int = 0
     """Seed of every random source (weights, samplers, jitter)."""
     checkpoint_every: int = 500

@@ -132,7 +132,8 @@ class FruitNeRFModel(nn.Module):
         self.grid = occupancy_grid(config, aabb, fruit_diameter_m).to(device)
         trained = torch.zeros(dataset.num_views, dtype=torch.bool)
         trained[dataset.train_indices] = True
-        self.pose_refinement = PoseRefinement(trained).to(device) if config.geometry.pose_lr > 0 else None
+        refines = config.geometry.pose_lr > 0 or config.pose_alignment.enabled
+        self.pose_refinement = PoseRefinement(trained).to(device) if refines else None
         self.register_buffer('images', dataset.images.to(device), persistent=False)
         self.register_buffer('semantics', dataset.semantic_masks.to(device), persistent=False)
         self.register_buffer('poses', dataset.T_world_camera.to(device), persistent=False)

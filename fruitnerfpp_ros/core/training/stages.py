@@ -118,7 +118,7 @@ class GeometryStage:
         g = self.config.geometry
         start, pose_start = (g.lr, g.pose_lr) if decaying else (g.lr_final, g.pose_lr_final)
         groups = [ParamGroup('geometry', tuple(model.field.geometry_parameters()), start, g.lr_final)]
-        if model.pose_refinement is not None:
+        if model.pose_refinement is not None and g.pose_lr > 0:  # else fixed at the alignment's corrections
             groups.append(ParamGroup('poses', tuple(model.pose_refinement.parameters()), pose_start,
                                      g.pose_lr_final, g.pose_start_fraction if decaying else 0.0))
         return groups

@@ -9,6 +9,7 @@ CUDA within a small tolerance: the hash-grid backward uses atomic adds). Nothing
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import threading
@@ -22,13 +23,14 @@ import torch
 
 from fruitnerfpp_ros.core.config_io import config_from_mapping, config_to_mapping, save_config
 from fruitnerfpp_ros.core.data.dataset import SceneDataset, load_dataset
+from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignment, align_poses
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_checkpoint
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, psnr_from_mse
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
-from fruitnerfpp_ros.core.training.pose_refinement import write_refined_poses
+from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement, write_refined_poses
 from fruitnerfpp_ros.core.training.run_dir import RunDir
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.data.scene_scale import SceneScale
@@ -40,6 +42,9 @@ from fruitnerfpp_ros.errors import TrainingError
 __all__ = ['STAGES', 'StageSummary', 'TrainSummary', 'train', 'make_optimizer']
 
 log = logging.getLogger(__name__)
+
+#: The pose alignment's figures (core/data/pose_alignment.py), written when it runs.
+POSE_ALIGNMENT_JSON = 'pose_alignment.json'
 
 #: Stage names, in order; progress phases are ``Phase.training(name)``.
 STAGES = STAGE_NAMES
@@ -234,10 +239,14 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     if state is not None and Path(state['dataset_dir']).resolve() != Path(dataset_dir).resolve():
         log.warning('resume: dataset %s differs from the one the run started with (%s)', dataset_dir,
                     state['dataset_dir'])
+    alignment = None
     if state is not None:
         aabb, scale = np.asarray(state['aabb']), scale_from_json(state['scale'])
     else:
-        aabb, scale = measure_scene(dataset, config, dev)
+        alignment = _aligned_poses(dataset, config)
+        measured = dataset if alignment is None else dataclasses.replace(
+            dataset, T_world_camera=_corrected(dataset, alignment.correction))
+        aabb, scale = measure_scene(measured, config, dev)
     stages = build_stages(config, dataset)
     run.create()
     save_config(config, run.config_path)
@@ -247,6 +256,10 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
         log.warning('could not measure the fruit size from the masks (%d fruit voxels); using %.3f m: set '
                     'scale.fruit_diameter_m if that is far off', scale.n_fruit_voxels, scale.fruit_diameter_m)
     model = FruitNeRFModel(config, dataset, aabb, scale.fruit_diameter_m, dev)
+    if alignment is not None:  # the geometry stage's pose corrections start at the alignment's (a resume: its own)
+        atomic_write_text(run.root / POSE_ALIGNMENT_JSON, json.dumps(alignment.report, indent=1))
+        with torch.no_grad():
+            model.pose_refinement.correction.copy_(torch.as_tensor(alignment.correction, dtype=torch.float32))
     if model.depth_check is not None:  # RGB-D: which views' depth agreed with their neighbours'
         atomic_write_text(run.root / 'depth_check.json', json.dumps(model.depth_check.to_json(), indent=1))
     generator = torch.Generator().manual_seed(config.seed)
@@ -264,6 +277,31 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     for p in model.parameters():
         p.requires_grad_(False)
     return TrainSummary(run.root, str(dev), tuple(counters.summaries or ()), stopped, aabb, scale)
+
+
+def _aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment | None:
+    """The feature-based pose alignment of the training views (``config.pose_alignment``), or None when off."""
+    if not config.pose_alignment.enabled:
+        return None
+    views = dataset.train_indices.numpy()
+    images = (dataset.images[views].numpy() * 255.0).round().astype(np.uint8)
+    valid = None if dataset.valid_masks is None else dataset.valid_masks[views].numpy()
+    result = align_poses(images, dataset.intrinsics[views].double().numpy(),
+                         dataset.T_world_camera[views].double().numpy(), config.pose_alignment, valid)
+    correction = np.zeros((dataset.num_views, 6))
+    correction[views] = result.correction
+    log.info('pose alignment: %s', result.report)
+    return PoseAlignment(correction, result.report)
+
+
+def _corrected(dataset: SceneDataset, correction: np.ndarray) -> torch.Tensor:
+    """The dataset's poses with ``correction`` [V, 6] applied as :class:`PoseRefinement` applies it."""
+    trained = torch.zeros(dataset.num_views, dtype=torch.bool)
+    trained[dataset.train_indices] = True
+    corrections = PoseRefinement(trained)
+    with torch.no_grad():
+        corrections.correction.copy_(torch.as_tensor(correction, dtype=torch.float32))
+        return corrections(dataset.T_world_camera)
 
 
 def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDataset, config: TrainConfig, run: RunDir,

@@ -1,0 +1,273 @@
+"""Align the recorded camera poses to the images before training: feature tracks and a bundle adjustment.
+
+Robot odometry is off by centimetres and a degree or so per frame; the photometric pose refinement of the geometry
+stage (``geometry.pose_lr``) undoes part of it, from a field that is itself blurred by the error. This step runs
+first, from the images alone, as a robot integrator would run COLMAP with pose priors:
+
+1. SIFT features per view (OpenCV; small images are upsampled so that a 240 px frame still gives features);
+2. each view matched with its nearest views that look the same way (ratio test, then a fundamental matrix with
+   RANSAC against outliers);
+3. matches joined into tracks (connected components; a track that holds two features of one view is dropped);
+4. each track triangulated from the recorded poses (the rays' least-squares point), tracks that do not reproject
+   within ``max_track_error_px`` dropped;
+5. a bundle adjustment (``scipy.optimize.least_squares``, Huber loss on the reprojection in pixels, sparse
+   Jacobian) of a 6-vector per view, the same correction :class:`PoseRefinement` learns (a rotation in the camera's
+   frame, a translation in the world's), and the track points, with a Gaussian prior on each correction
+   (``prior_rotation_deg``, ``prior_translation_m``) that holds the gauge and the views the tracks do not reach.
+
+The result initialises the geometry stage's pose corrections (``core/training/model.py``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial.transform import Rotation
+
+__all__ = ['PoseAlignmentConfig', 'PoseAlignment', 'align_poses']
+
+
+@dataclass(frozen=True)
+class PoseAlignmentConfig:
+    """Feature-based pose alignment before training (see the module docstring)."""
+
+    enabled: bool = False
+    """Run the alignment; off keeps the recorded poses as the geometry stage's starting point."""
+    max_features: int = 2000
+    """SIFT features per view at most."""
+    upsample_below_px: int = 480
+    """Views narrower than this are upsampled 2x for the feature detector (a 240 px frame gives few features)."""
+    contrast_threshold: float = 0.01
+    """SIFT's contrast threshold (OpenCV's default 0.04 finds few features on foliage at low resolution)."""
+    neighbours: int = 8
+    """Each view is matched with this many nearest views whose optical axes are within 60 deg of its own."""
+    ratio: float = 0.8
+    """Lowe's ratio test."""
+    ransac_px: float = 1.0
+    """Epipolar distance (px) for the fundamental matrix's RANSAC."""
+    min_inliers: int = 15
+    """A view pair with fewer geometric inliers is left out."""
+    max_track_error_px: float = 12.0
+    """A track whose worst reprojection from the recorded poses is larger is left out (a wrong match)."""
+    min_tracks: int = 200
+    """With fewer tracks the recorded poses are kept (too little to adjust them by)."""
+    skip_below_px: float = 0.5
+    """The recorded poses are kept when the tracks' median reprojection from them is below this (px): they agree
+    with the images already, and an adjustment would only add its own error (on exact poses about 1 px)."""
+    prior_rotation_deg: float = 0.5
+    """Standard deviation of the prior on a view's rotation correction (deg)."""
+    prior_translation_m: float = 0.02
+    """Standard deviation of the prior on a view's translation correction (m)."""
+    robust_px: float = 2.0
+    """Cauchy scale of the reprojection residuals (px)."""
+    max_evaluations: int = 200
+    """Function evaluations of the bundle adjustment at most (per round)."""
+    rounds: int = 3
+    """Adjustments; each weighs the observations by a Cauchy weight of the last one's reprojection error (a wrong
+    match fades out, the priors stay Gaussian)."""
+
+
+@dataclass(frozen=True)
+class PoseAlignment:
+    """The alignment's outcome.
+
+    Attributes:
+        correction: [V, 6] float64 per view: rotation (axis times angle, rad, camera frame), translation (m, world).
+        report: figures for ``pose_alignment.json`` (features, pairs, tracks, reprojection before / after).
+    """
+
+    correction: np.ndarray
+    report: dict
+
+
+def align_poses(images: np.ndarray, intrinsics: np.ndarray, T_world_camera: np.ndarray,
+                config: PoseAlignmentConfig, valid: np.ndarray | None = None) -> PoseAlignment:
+    """Pose corrections that make the views' feature tracks meet.
+
+    Args:
+        images: [V, H, W, 3] uint8 RGB.
+        intrinsics: [V, 4] (fl_x, fl_y, cx, cy), pixels.
+        T_world_camera: [V, 4, 4] camera-to-world poses, OpenGL camera axes, metres.
+        config: the alignment's settings.
+        valid: optional [V, H, W] bool, False where a pixel holds no data (no features there).
+    """
+    T = np.asarray(T_world_camera, np.float64)
+    K = np.asarray(intrinsics, np.float64)
+    V = len(T)
+    features = [_features(images[v], None if valid is None else valid[v], config) for v in range(V)]
+    edges, pairs = _matches(features, T, config)
+    zero = np.zeros((V, 6))
+    report = {'views': V, 'features_median': int(np.median([len(k) for k, _ in features])) if V else 0,
+              'pairs': pairs}
+    if len(edges) == 0:
+        return PoseAlignment(zero, {**report, 'tracks': 0, 'applied': False})
+    view_of, points_px = _observations(features)
+    track, view, uv = _tracks(edges, view_of, points_px, V)
+    X = _triangulate(T, K, track, view, uv)
+    uv0 = _project(T[:, :3, :3], T[:, :3, 3], K, X[track], view)
+    error = np.linalg.norm(uv0 - uv, axis=1)
+    worst = np.full(len(X), np.inf)
+    np.minimum.at(worst, track, 0.0)
+    np.maximum.at(worst, track, np.where(np.isfinite(error), error, np.inf))
+    keep = (worst < config.max_track_error_px)[track]
+    kept_tracks, track = np.unique(track[keep], return_inverse=True)
+    view, uv, X = view[keep], uv[keep], X[kept_tracks]
+    report.update(tracks=len(X), observations=int(len(view)),
+                  reprojection_px_before=round(float(np.median(error[keep])), 3) if keep.any() else None)
+    if len(X) < config.min_tracks:
+        return PoseAlignment(zero, {**report, 'applied': False, 'reason': f'fewer than {config.min_tracks} tracks'})
+    if report['reprojection_px_before'] < config.skip_below_px:
+        return PoseAlignment(zero, {**report, 'applied': False, 'reason': 'the recorded poses agree with the images'})
+    correction, after = _bundle_adjust(T, K, X, track, view, uv, config)
+    angles = np.rad2deg(np.linalg.norm(correction[:, :3], axis=1))
+    report.update(applied=True, reprojection_px_after=round(float(np.median(after)), 3),
+                  max_rotation_deg=round(float(angles.max()), 4),
+                  max_translation_m=round(float(np.linalg.norm(correction[:, 3:], axis=1).max()), 5))
+    return PoseAlignment(correction, report)
+
+
+def _features(image: np.ndarray, valid: np.ndarray | None, config: PoseAlignmentConfig
+              ) -> tuple[np.ndarray, np.ndarray | None]:
+    """Keypoints [N, 2] (pixels of the original image) and SIFT descriptors [N, 128] of one view."""
+    gray = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2GRAY)
+    mask = None if valid is None else np.ascontiguousarray(valid, np.uint8) * 255
+    factor = 2.0 if gray.shape[1] < config.upsample_below_px else 1.0
+    if factor != 1.0:
+        gray = cv2.resize(gray, None, fx=factor, fy=factor, interpolation=cv2.INTER_CUBIC)
+        mask = None if mask is None else cv2.resize(mask, None, fx=factor, fy=factor,
+                                                    interpolation=cv2.INTER_NEAREST)
+    sift = cv2.SIFT_create(nfeatures=config.max_features, contrastThreshold=config.contrast_threshold)
+    keypoints, descriptors = sift.detectAndCompute(gray, mask)
+    points = np.array([k.pt for k in keypoints], np.float64).reshape(-1, 2)
+    return (points + 0.5) / factor - 0.5, descriptors
+
+
+def _neighbours(T: np.ndarray, count: int) -> list[tuple[int, int]]:
+    """View pairs (i < j): each view's ``count`` nearest views whose optical axes are within 60 deg."""
+    centre, axis = T[:, :3, 3], -T[:, :3, 2]
+    distance = np.linalg.norm(centre[:, None] - centre[None], axis=-1)
+    distance[axis @ axis.T < 0.5] = np.inf
+    np.fill_diagonal(distance, np.inf)
+    nearest = np.argsort(distance, axis=1)[:, :count]
+    pairs = {(min(i, j), max(i, j)) for i, row in enumerate(nearest) for j in row if np.isfinite(distance[i, j])}
+    return sorted(pairs)
+
+
+def _matches(features: list, T: np.ndarray, config: PoseAlignmentConfig) -> tuple[np.ndarray, int]:
+    """Geometrically verified matches as pairs of global feature indices [M, 2], and the number of view pairs."""
+    offsets = np.cumsum([0] + [len(k) for k, _ in features])
+    matcher = cv2.BFMatcher(cv2.NORM_L2)
+    edges, pairs = [], 0
+    for i, j in _neighbours(T, config.neighbours):
+        (ki, di), (kj, dj) = features[i], features[j]
+        if di is None or dj is None or len(ki) < 2 or len(kj) < 2:
+            continue
+        knn = matcher.knnMatch(di, dj, k=2)
+        good = [m[0] for m in knn if len(m) == 2 and m[0].distance < config.ratio * m[1].distance]
+        if len(good) < config.min_inliers:
+            continue
+        qi = np.array([m.queryIdx for m in good])
+        tj = np.array([m.trainIdx for m in good])
+        try:
+            F, inliers = cv2.findFundamentalMat(ki[qi], kj[tj], cv2.FM_RANSAC, config.ransac_px, 0.999)
+        except cv2.error:
+            continue
+        if F is None or inliers is None or int(inliers.sum()) < config.min_inliers:
+            continue
+        ok = inliers.ravel().astype(bool)
+        edges.append(np.stack([offsets[i] + qi[ok], offsets[j] + tj[ok]], 1))
+        pairs += 1
+    return (np.concatenate(edges) if edges else np.zeros((0, 2), np.int64)), pairs
+
+
+def _observations(features: list) -> tuple[np.ndarray, np.ndarray]:
+    """The view of every feature [N] and its pixel position [N, 2]."""
+    counts = [len(k) for k, _ in features]
+    return np.repeat(np.arange(len(features)), counts), np.concatenate([k for k, _ in features])
+
+
+def _tracks(edges: np.ndarray, view_of: np.ndarray, points_px: np.ndarray, V: int
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Observations (track id, view, pixel) of the matches' connected components, one feature per view."""
+    n = len(view_of)
+    graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    nodes = np.unique(edges)
+    track, view = label[nodes], view_of[nodes]
+    _, inverse, count = np.unique(track.astype(np.int64) * V + view, return_inverse=True, return_counts=True)
+    ambiguous = np.unique(track[count[inverse] > 1])
+    keep = ~np.isin(track, ambiguous)
+    _, track = np.unique(track[keep], return_inverse=True)
+    return track, view[keep], points_px[nodes][keep]
+
+
+def _rays(R: np.ndarray, t: np.ndarray, K: np.ndarray, view: np.ndarray, uv: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """World origins and unit directions of the pixels ``uv`` of views ``view`` (OpenGL camera axes)."""
+    k = K[view]
+    d = np.stack([(uv[:, 0] - k[:, 2]) / k[:, 0], -(uv[:, 1] - k[:, 3]) / k[:, 1], -np.ones(len(view))], 1)
+    d = np.einsum('nij,nj->ni', R[view], d)
+    return t[view], d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _triangulate(T: np.ndarray, K: np.ndarray, track: np.ndarray, view: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Each track's point [P, 3]: the least-squares meeting point of its rays."""
+    origin, d = _rays(T[:, :3, :3], T[:, :3, 3], K, view, uv)
+    A = np.eye(3)[None] - d[:, :, None] * d[:, None, :]
+    P = int(track.max()) + 1
+    A_sum, b_sum = np.zeros((P, 3, 3)), np.zeros((P, 3))
+    np.add.at(A_sum, track, A)
+    np.add.at(b_sum, track, np.einsum('nij,nj->ni', A, origin))
+    return np.linalg.solve(A_sum + 1e-9 * np.eye(3), b_sum[..., None])[..., 0]
+
+
+def _project(R: np.ndarray, t: np.ndarray, K: np.ndarray, X: np.ndarray, view: np.ndarray) -> np.ndarray:
+    """Pixels [N, 2] of world points ``X`` [N, 3] in views ``view``; NaN behind the camera."""
+    p = np.einsum('nji,nj->ni', R[view], X - t[view])
+    z = -p[:, 2]
+    k = K[view]
+    uv = np.stack([k[:, 0] * p[:, 0] / z + k[:, 2], -k[:, 1] * p[:, 1] / z + k[:, 3]], 1)
+    uv[z <= 1e-6] = np.nan
+    return uv
+
+
+def _bundle_adjust(T: np.ndarray, K: np.ndarray, X0: np.ndarray, track: np.ndarray, view: np.ndarray,
+                   uv: np.ndarray, config: PoseAlignmentConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Per-view corrections [V, 6] and the observations' reprojection errors (px) after the adjustment."""
+    V, P, M = len(T), len(X0), len(view)
+    R0, t0 = T[:, :3, :3], T[:, :3, 3]
+    sigma = np.r_[np.full(3, np.deg2rad(config.prior_rotation_deg)), np.full(3, config.prior_translation_m)]
+
+    def unpack(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        correction = x[:6 * V].reshape(V, 6)
+        R = R0 @ Rotation.from_rotvec(correction[:, :3]).as_matrix()
+        return correction, R, t0 + correction[:, 3:], x[6 * V:].reshape(P, 3)
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        correction, R, t, X = unpack(x)
+        r = _project(R, t, K, X[track], view) - uv
+        return np.concatenate([np.nan_to_num(r, nan=1e3).ravel(), (correction / sigma).ravel()])
+
+    rows = np.repeat(np.arange(2 * M), 9)
+    view_cols = 6 * view[:, None] + np.arange(6)
+    point_cols = 6 * V + 3 * track[:, None] + np.arange(3)
+    cols = np.repeat(np.concatenate([view_cols, point_cols], 1), 2, axis=0).ravel()
+    prior = np.arange(6 * V)
+    sparsity = coo_matrix((np.ones(len(rows) + 6 * V, np.int8), (np.r_[rows, 2 * M + prior], np.r_[cols, prior])),
+                          shape=(2 * M + 6 * V, 6 * V + 3 * P))
+    x = np.r_[np.zeros(6 * V), X0.ravel()]
+    weight = np.ones(M)
+    for _ in range(config.rounds):  # iteratively reweighted: Cauchy on the reprojections, Gaussian priors
+        solution = least_squares(lambda x: residuals(x) * np.r_[np.repeat(weight, 2), np.ones(6 * V)], x,
+                                 jac_sparsity=sparsity, x_scale='jac', method='trf',
+                                 max_nfev=config.max_evaluations)
+        x = solution.x
+        correction, R, t, X = unpack(x)
+        after = np.nan_to_num(np.linalg.norm(_project(R, t, K, X[track], view) - uv, axis=1), nan=np.inf)
+        weight = np.sqrt(1.0 / (1.0 + (after / config.robust_px) ** 2))
+    return correction, after

@@ -1,0 +1,122 @@
+"""Feature-based pose alignment before training: tracks, the bundle adjustment, the gate, the trainer's use of it.
+
+The accuracy figures (the suite's pose-noise row, the drift on exact poses) are in docs/results/pose_refinement.md.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from fruitnerfpp_ros.core.config_io import replace_nested
+from fruitnerfpp_ros.core.data import pose_alignment
+from fruitnerfpp_ros.core.data.dataset import load_dataset
+from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignment, PoseAlignmentConfig, align_poses
+from fruitnerfpp_ros.core.data.transforms_format import read_transforms
+from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
+from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
+from fruitnerfpp_ros.core.tracking.camera import PinholeView
+from fruitnerfpp_ros.core.training import train
+from fruitnerfpp_ros.core.training.trained_scene import load_trained_scene
+from test.core.training.stand_in_scene import make_sphere_scene
+from test.core.training.test_trainer import MICRO
+
+ROW = dict(fruit='apple', count=30, views=48, resolution=(240, 180), trajectory='row', seed=111, sparse_points=0)
+
+
+@pytest.fixture(scope='module')
+def twins(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A row drive with 2 cm / 1 deg odometry noise and its exact twin (same images, the true poses)."""
+    root = tmp_path_factory.mktemp('pose_twins')
+    generate_orchard(SynthConfig(**ROW, pose_noise_m=0.02, pose_noise_deg=1.0), root / 'noisy')
+    generate_orchard(SynthConfig(**ROW), root / 'clean')
+    return root / 'noisy', root / 'clean'
+
+
+def _align(dataset_dir: Path) -> tuple[PoseAlignment, np.ndarray]:
+    data = load_dataset(dataset_dir, eval_every=0)
+    T = data.T_world_camera.double().numpy()
+    result = align_poses((data.images.numpy() * 255).round().astype(np.uint8), data.intrinsics.double().numpy(), T,
+                         PoseAlignmentConfig(enabled=True))
+    return result, T
+
+
+def _corrected(T: np.ndarray, correction: np.ndarray) -> np.ndarray:
+    out = T.copy()
+    out[:, :3, :3] = T[:, :3, :3] @ Rotation.from_rotvec(correction[:, :3]).as_matrix()
+    out[:, :3, 3] = T[:, :3, 3] + correction[:, 3:] - correction[:, 3:].mean(0)  # the gauge, as PoseRefinement
+    return out
+
+
+def _fruit_px(T: np.ndarray, truth: np.ndarray, dataset_dir: Path) -> float:
+    """Median distance (px) between the fruit centres projected with poses ``T`` and with the true poses."""
+    transforms = read_transforms(dataset_dir)
+    centres = np.asarray(load_ground_truth(dataset_dir / 'gt_fruits.json').centers)
+    px = []
+    for pose, exact, frame in zip(T, truth, transforms.frames):
+        camera = frame.intrinsics or transforms.intrinsics
+        true_uv, depth = PinholeView.from_intrinsics(exact, camera).project(centres)
+        uv, _ = PinholeView.from_intrinsics(pose, camera).project(centres)
+        px.append(np.linalg.norm(uv - true_uv, axis=1)[depth > 0.1])
+    return float(np.median(np.concatenate(px)))
+
+
+def test_the_alignment_undoes_most_of_the_odometry_noise(twins: tuple[Path, Path]) -> None:
+    noisy, clean = twins
+    result, T = _align(noisy)
+    truth = load_dataset(clean, eval_every=0).T_world_camera.double().numpy()
+    before, after = _fruit_px(T, truth, noisy), _fruit_px(_corrected(T, result.correction), truth, noisy)
+    assert result.report['applied'] and result.report['tracks'] >= 200
+    assert result.report['reprojection_px_before'] > 1.0 > result.report['reprojection_px_after']
+    assert before > 4.0 and after < 0.6 * before, (before, after, result.report)
+
+
+def test_exact_poses_are_kept(twins: tuple[Path, Path]) -> None:
+    result, _ = _align(twins[1])
+    assert not result.report['applied'] and result.report['reason'] == 'the recorded poses agree with the images'
+    assert result.report['reprojection_px_before'] < 0.5 and not result.correction.any()
+
+
+def test_a_track_with_two_features_in_one_view_is_dropped() -> None:
+    # features 0, 1 in view 0, 2 and 4 in view 1, 3 in view 2: the matches join {0, 1, 2} (two of view 0) and {3, 4}
+    view_of = np.array([0, 0, 1, 2, 1])
+    points = np.arange(10, dtype=np.float64).reshape(5, 2)
+    edges = np.array([[0, 2], [2, 1], [3, 4]])
+    track, view, uv = pose_alignment._tracks(edges, view_of, points, 3)
+    assert track.tolist() == [0, 0] and sorted(view.tolist()) == [1, 2]
+    np.testing.assert_array_equal(uv, points[[3, 4]])
+
+
+def test_training_starts_from_the_alignment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The geometry stage's pose corrections start at the alignment's; with pose_lr 0 they stay there."""
+    scene = make_sphere_scene(tmp_path / 'spheres', views=10, size=32, fruits=6, write_ply=True)
+    data = load_dataset(scene, eval_every=MICRO.data.eval_every)
+    views = data.train_indices.numpy()
+    wanted = np.zeros((len(views), 6))
+    wanted[:, 2] = np.deg2rad(0.5) * np.linspace(-1, 1, len(views))
+    wanted[:, 3] = np.linspace(-0.01, 0.01, len(views))
+    calls = []
+
+    def stub(images: np.ndarray, intrinsics: np.ndarray, T: np.ndarray, config: PoseAlignmentConfig,
+             valid: np.ndarray | None = None) -> PoseAlignment:
+        calls.append(len(images))
+        return PoseAlignment(wanted, {'applied': True})
+
+    monkeypatch.setattr('fruitnerfpp_ros.core.training.trainer.align_poses', stub)
+    config = replace_nested(MICRO, {'pose_alignment': {'enabled': True}, 'geometry': {'pose_lr': 0.0}})
+    train(scene, tmp_path / 'run', config, device='cpu')
+    assert calls == [len(views)]  # the training views only
+    assert json.loads((tmp_path / 'run' / 'pose_alignment.json').read_text()) == {'applied': True}
+    trained = load_trained_scene(tmp_path / 'run', device='cpu')
+    corrections = trained.pose_corrections.correction.detach().double().numpy()
+    np.testing.assert_allclose(corrections[views], wanted, atol=1e-7)
+    held_out = np.setdiff1d(np.arange(data.num_views), views)
+    poses = trained.poses(data.T_world_camera)
+    assert torch.equal(poses[held_out], data.T_world_camera[held_out])  # held-out views keep their recorded pose
+    expected = _corrected(data.T_world_camera[views].double().numpy(), wanted)
+    np.testing.assert_allclose(poses[views].double().numpy(), expected, atol=1e-5)
