@@ -46,6 +46,9 @@ class PoseAlignmentConfig:
     """SIFT's contrast threshold (OpenCV's default 0.04 finds few features on foliage at low resolution)."""
     neighbours: int = 8
     """Each view is matched with this many nearest views whose optical axes are within 60 deg of its own."""
+    check_neighbours: int = 2
+    """The gate's first look matches each view with this many only; when that already shows the recorded poses
+    agreeing with the images (``skip_below_px``, ``min_tracks``), the full matching is skipped."""
     ratio: float = 0.8
     """Lowe's ratio test."""
     ransac_px: float = 1.0
@@ -99,36 +102,57 @@ def align_poses(images: np.ndarray, intrinsics: np.ndarray, T_world_camera: np.n
     T = np.asarray(T_world_camera, np.float64)
     K = np.asarray(intrinsics, np.float64)
     V = len(T)
-    features = [_features(images[v], None if valid is None else valid[v], config) for v in range(V)]
-    edges, pairs = _matches(features, T, config)
     zero = np.zeros((V, 6))
-    report = {'views': V, 'features_median': int(np.median([len(k) for k, _ in features])) if V else 0,
-              'pairs': pairs}
-    if len(edges) == 0:
-        return PoseAlignment(zero, {**report, 'tracks': 0, 'applied': False})
-    view_of, points_px = _observations(features)
-    track, view, uv = _tracks(edges, view_of, points_px, V)
-    X = _triangulate(T, K, track, view, uv)
-    uv0 = _project(T[:, :3, :3], T[:, :3, 3], K, X[track], view)
-    error = np.linalg.norm(uv0 - uv, axis=1)
-    worst = np.full(len(X), np.inf)
-    np.minimum.at(worst, track, 0.0)
-    np.maximum.at(worst, track, np.where(np.isfinite(error), error, np.inf))
-    keep = (worst < config.max_track_error_px)[track]
-    kept_tracks, track = np.unique(track[keep], return_inverse=True)
-    view, uv, X = view[keep], uv[keep], X[kept_tracks]
-    report.update(tracks=len(X), observations=int(len(view)),
-                  reprojection_px_before=round(float(np.median(error[keep])), 3) if keep.any() else None)
+    features = [_features(images[v], None if valid is None else valid[v], config) for v in range(V)]
+    agree = 'the recorded poses agree with the images'
+    # The check first, on each view's nearest neighbours only (a quarter of the matching): most datasets stop here.
+    check = _measured_tracks(features, T, K, config, config.check_neighbours)
+    if check[3]['tracks'] >= config.min_tracks and check[3]['reprojection_px_before'] < config.skip_below_px:
+        check[3].pop('points')
+        return PoseAlignment(zero, {**check[3], 'applied': False, 'reason': agree})
+    too_few = f'fewer than {config.min_tracks} tracks'
+    if check[3]['tracks'] * config.neighbours < config.min_tracks * config.check_neighbours:  # all pairs: too few too
+        check[3].pop('points', None)
+        return PoseAlignment(zero, {**check[3], 'applied': False, 'reason': too_few})
+    track, view, uv, report = check if config.check_neighbours >= config.neighbours else \
+        _measured_tracks(features, T, K, config, config.neighbours)
+    if track is None:
+        return PoseAlignment(zero, {**report, 'applied': False, 'reason': 'no view pair matched'})
+    X = report.pop('points')
     if len(X) < config.min_tracks:
-        return PoseAlignment(zero, {**report, 'applied': False, 'reason': f'fewer than {config.min_tracks} tracks'})
+        return PoseAlignment(zero, {**report, 'applied': False, 'reason': too_few})
     if report['reprojection_px_before'] < config.skip_below_px:
-        return PoseAlignment(zero, {**report, 'applied': False, 'reason': 'the recorded poses agree with the images'})
+        return PoseAlignment(zero, {**report, 'applied': False, 'reason': agree})
     correction, after = _bundle_adjust(T, K, X, track, view, uv, config)
     angles = np.rad2deg(np.linalg.norm(correction[:, :3], axis=1))
     report.update(applied=True, reprojection_px_after=round(float(np.median(after)), 3),
                   max_rotation_deg=round(float(angles.max()), 4),
                   max_translation_m=round(float(np.linalg.norm(correction[:, 3:], axis=1).max()), 5))
     return PoseAlignment(correction, report)
+
+
+def _measured_tracks(features: list, T: np.ndarray, K: np.ndarray, config: PoseAlignmentConfig, neighbours: int
+                     ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, dict]:
+    """The tracks of matches with ``neighbours`` nearest views, those that reproject within ``max_track_error_px``
+    from the recorded poses: (track id, view, pixel) per observation and a report whose ``points`` are the tracks'
+    triangulated points (None for all three when no pair matched)."""
+    edges, pairs = _matches(features, T, config, neighbours)
+    report = {'views': len(T), 'features_median': int(np.median([len(k) for k, _ in features])) if len(T) else 0,
+              'pairs': pairs, 'tracks': 0}
+    if len(edges) == 0:
+        return None, None, None, report
+    view_of, points_px = _observations(features)
+    track, view, uv = _tracks(edges, view_of, points_px, len(T))
+    X = _triangulate(T, K, track, view, uv)
+    error = np.linalg.norm(_project(T[:, :3, :3], T[:, :3, 3], K, X[track], view) - uv, axis=1)
+    worst = np.zeros(len(X))
+    np.maximum.at(worst, track, np.where(np.isfinite(error), error, np.inf))
+    keep = (worst < config.max_track_error_px)[track]
+    kept_tracks, track = np.unique(track[keep], return_inverse=True)
+    report.update(tracks=len(kept_tracks), observations=int(keep.sum()),
+                  reprojection_px_before=round(float(np.median(error[keep])), 3) if keep.any() else None,
+                  points=X[kept_tracks])
+    return track, view[keep], uv[keep], report
 
 
 def _features(image: np.ndarray, valid: np.ndarray | None, config: PoseAlignmentConfig
@@ -158,12 +182,13 @@ def _neighbours(T: np.ndarray, count: int) -> list[tuple[int, int]]:
     return sorted(pairs)
 
 
-def _matches(features: list, T: np.ndarray, config: PoseAlignmentConfig) -> tuple[np.ndarray, int]:
+def _matches(features: list, T: np.ndarray, config: PoseAlignmentConfig, neighbours: int
+             ) -> tuple[np.ndarray, int]:
     """Geometrically verified matches as pairs of global feature indices [M, 2], and the number of view pairs."""
     offsets = np.cumsum([0] + [len(k) for k, _ in features])
     matcher = cv2.BFMatcher(cv2.NORM_L2)
     edges, pairs = [], 0
-    for i, j in _neighbours(T, config.neighbours):
+    for i, j in _neighbours(T, neighbours):
         (ki, di), (kj, dj) = features[i], features[j]
         if di is None or dj is None or len(ki) < 2 or len(kj) < 2:
             continue
