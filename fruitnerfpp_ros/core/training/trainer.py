@@ -284,6 +284,7 @@ def _aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment 
     if not config.pose_alignment.enabled:
         return None
     views = dataset.train_indices.numpy()
+    log.info('pose alignment: features and matches of %d training views', len(views))
     images = (dataset.images[views].numpy() * 255.0).round().astype(np.uint8)
     valid = None if dataset.valid_masks is None else dataset.valid_masks[views].numpy()
     result = align_poses(images, dataset.intrinsics[views].double().numpy(),
