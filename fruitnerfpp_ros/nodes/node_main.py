@@ -66,17 +66,21 @@ def _drain(executor: Executor, timeout_s: float) -> None:
     rclpy Jazzy's ``Executor.shutdown`` does not wait for them, and ``MultiThreadedExecutor`` keeps its threads in a
     ``ThreadPoolExecutor`` (``_executor``) that nothing shuts down: a node destroyed under a running callback is a
     use after free in rcl (the process ended with SIGSEGV on SIGINT). Queued callbacks that have not started are
-    cancelled. Where the attribute is absent (other rclpy versions), ``shutdown`` is all there is.
+    cancelled. The pool's threads are found by name as well: a Ctrl-C that lands while the pool starts a thread
+    leaves that thread out of the pool's own set. Where the attribute is absent (other rclpy versions),
+    ``shutdown`` is all there is.
     """
+    deadline = time.monotonic() + timeout_s
     executor.shutdown(timeout_sec=timeout_s)
     pool = getattr(executor, '_executor', None)
     if not isinstance(pool, ThreadPoolExecutor):
         return
-    waiter = threading.Thread(target=pool.shutdown, kwargs={'wait': True, 'cancel_futures': True},
-                              name='executor-drain', daemon=True)
-    waiter.start()
-    waiter.join(timeout_s)
-    if waiter.is_alive():
+    pool.shutdown(wait=False, cancel_futures=True)
+    prefix = f'{getattr(pool, "_thread_name_prefix", None)}_'
+    workers = set(getattr(pool, '_threads', ())) | {t for t in threading.enumerate() if t.name.startswith(prefix)}
+    for worker in workers - {threading.current_thread()}:
+        worker.join(max(0.0, deadline - time.monotonic()))
+    if any(worker.is_alive() for worker in workers):
         print(f'a callback still runs after {timeout_s:.0f} s; destroying the node anyway', file=sys.stderr)
 
 

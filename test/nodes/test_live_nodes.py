@@ -227,27 +227,13 @@ def test_orchard_sim_replays_a_bag_as_live_topics(graph: Graph, tmp_path: Path) 
 
 def test_fruit_counter_runs_as_a_process_and_stops_on_sigint(tmp_path: Path) -> None:
     import os
-    import signal
     import subprocess
     import sys
-    proc = subprocess.Popen([sys.executable, '-m', 'fruitnerfpp_ros.nodes.fruit_counter', '--ros-args', '-p',
-                             f'output_dir:={tmp_path / "run"}', '-p', 'pose_source:=pose'],
-                            env=dict(os.environ), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        lines = []
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            line = proc.stdout.readline()
-            lines.append(line)
-            if 'collecting keyframes into' in line or not line:
-                break
-        assert 'collecting keyframes into' in lines[-1], ''.join(lines)
-        proc.send_signal(signal.SIGINT)
-        rc = proc.wait(timeout=20)
-        assert rc == 0, ''.join(lines) + proc.stdout.read()  # the node's own words on a failed stop
-    finally:
-        if proc.poll() is None:
-            proc.kill()
+    from test.nodes.sigint import interrupt_after
+    rc, printed = interrupt_after([sys.executable, '-m', 'fruitnerfpp_ros.nodes.fruit_counter', '--ros-args', '-p',
+                                   f'output_dir:={tmp_path / "run"}', '-p', 'pose_source:=pose'],
+                                  'collecting keyframes into')
+    assert rc == 0, printed  # the node's own words on a failed stop
     assert (tmp_path / 'run' / 'params.yaml').is_file() and (tmp_path / 'run' / 'keyframes').is_dir()
     bad = subprocess.run([sys.executable, '-m', 'fruitnerfpp_ros.nodes.fruit_counter', '--ros-args', '-p',
                           'pose_source:=gps', '-p', f'output_dir:={tmp_path / "run2"}'], env=dict(os.environ),

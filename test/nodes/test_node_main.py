@@ -8,12 +8,10 @@ Before the fix the node was destroyed first and the late publish met a destroyed
 
 from __future__ import annotations
 
-import os
-import signal
-import subprocess
 import sys
 import textwrap
-import time
+
+from test.nodes.sigint import interrupt_after
 
 CHILD = textwrap.dedent('''
     import sys, time
@@ -50,23 +48,7 @@ CHILD = textwrap.dedent('''
 
 
 def test_a_running_callback_finishes_before_the_node_is_destroyed() -> None:
-    proc = subprocess.Popen([sys.executable, '-c', CHILD], env=dict(os.environ), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
-    try:
-        lines = []
-        deadline = time.monotonic() + 60
-        while time.monotonic() < deadline:
-            line = proc.stdout.readline()
-            lines.append(line)
-            if 'callback started' in line or not line:
-                break
-        assert 'callback started' in lines[-1], ''.join(lines)
-        proc.send_signal(signal.SIGINT)
-        rc = proc.wait(timeout=20)
-        lines += proc.stdout.read().splitlines(keepends=True)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    said = [s.strip() for s in lines if s.strip() in ('callback finished', 'node destroyed next')]
-    assert rc == 0 and said == ['callback finished', 'node destroyed next'], ''.join(lines)
-    assert 'destruction was requested' not in ''.join(lines)
+    rc, printed = interrupt_after([sys.executable, '-c', CHILD], 'callback started')
+    said = [s.strip() for s in printed.splitlines() if s.strip() in ('callback finished', 'node destroyed next')]
+    assert rc == 0 and said == ['callback finished', 'node destroyed next'], printed
+    assert 'destruction was requested' not in printed
