@@ -32,9 +32,9 @@ def spin_node(name: str, make_node: Callable[[], Node], make_executor: Callable[
     rclpy.init(args=args)
     node = executor = None
     try:
-        # The executor first: a SIGINT that lands while an executor is being built leaves a half-built one whose
-        # finaliser crashed the process (SIGSEGV in SignalHandlerGuardCondition.__del__); the node's construction
-        # takes longer and logs, so that is where a Ctrl-C lands.
+        # The executor first: one SIGSEGV on SIGINT came from the finaliser of an executor's SIGINT guard condition
+        # (SignalHandlerGuardCondition.__del__), likely an executor the KeyboardInterrupt left half-built; the node's
+        # construction takes longer and logs, so that is where an early Ctrl-C lands now.
         executor = make_executor()
         node = make_node()
         executor.add_node(node)
