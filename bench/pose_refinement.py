@@ -29,9 +29,8 @@ from fruitnerfpp_ros.core.config_io import load_yaml_mapping, replace_nested
 from fruitnerfpp_ros.core.data.dataset import load_dataset
 from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, read_transforms
 from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
-from fruitnerfpp_ros.core.geometry import rotation_angle_deg
+from fruitnerfpp_ros.core.evaluation.pose_errors import pose_errors
 from fruitnerfpp_ros.core.progress import ProgressEvent
-from fruitnerfpp_ros.core.tracking.camera import PinholeView
 from fruitnerfpp_ros.core.training import RunDir, TrainConfig, train
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
 from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
@@ -43,22 +42,6 @@ def _clean_views(clean_dir: Path, file_paths: list[str]) -> tuple[np.ndarray, li
     by_name = {f.file_path: f for f in transforms.frames}
     frames = [by_name[p] for p in file_paths]
     return np.stack([f.T_world_camera for f in frames]), [f.intrinsics or transforms.intrinsics for f in frames]
-
-
-def pose_errors(T: np.ndarray, truth: np.ndarray, cameras: list[CameraIntrinsics], X: np.ndarray
-                ) -> dict[str, float]:
-    """Rotation / position error and the fruit reprojection error of poses ``T`` against ``truth`` ([V, 4, 4])."""
-    angle = rotation_angle_deg(truth[:, :3, :3], T[:, :3, :3])
-    shift = np.linalg.norm(T[:, :3, 3] - truth[:, :3, 3], axis=-1)
-    px = []
-    for pose, exact, cam in zip(T, truth, cameras):
-        true_uv, depth = PinholeView.from_intrinsics(exact, cam).project(X)
-        uv, _ = PinholeView.from_intrinsics(pose, cam).project(X)
-        px.append(np.linalg.norm(uv - true_uv, axis=1)[depth > 0.1])
-    errors = np.concatenate(px)
-    return {'rotation_deg_median': float(np.median(angle)), 'position_m_median': float(np.median(shift)),
-            'reprojection_px_median': float(np.nanmedian(errors)),
-            'reprojection_px_p90': float(np.nanpercentile(errors, 90))}
 
 
 def main(argv: list[str] | None = None) -> int:

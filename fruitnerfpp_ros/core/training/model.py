@@ -119,10 +119,12 @@ class FruitNeRFModel(nn.Module):
         aabb: [2, 3] scene box, metres.
         fruit_diameter_m: the scene's fruit diameter (every length of the field and the marching follows from it).
         device: torch device.
+        pose_correction: optional [V, 6] starting pose corrections (the pose alignment's; zeros when None). They
+            exist with ``geometry.pose_lr`` > 0 or ``pose_alignment.enabled`` (at pose_lr 0 they stay fixed).
     """
 
     def __init__(self, config: TrainConfig, dataset: SceneDataset, aabb: np.ndarray, fruit_diameter_m: float,
-                 device: torch.device) -> None:
+                 device: torch.device, pose_correction: np.ndarray | None = None) -> None:
         super().__init__()
         self.config = config
         self.settings = render_settings(config, fruit_diameter_m)
@@ -132,8 +134,8 @@ class FruitNeRFModel(nn.Module):
         self.grid = occupancy_grid(config, aabb, fruit_diameter_m).to(device)
         trained = torch.zeros(dataset.num_views, dtype=torch.bool)
         trained[dataset.train_indices] = True
-        refines = config.geometry.pose_lr > 0 or config.pose_alignment.enabled
-        self.pose_refinement = PoseRefinement(trained).to(device) if refines else None
+        refines = config.geometry.pose_lr > 0 or config.pose_alignment.enabled  # a resume loads them too
+        self.pose_refinement = PoseRefinement(trained, pose_correction).to(device) if refines else None
         self.register_buffer('images', dataset.images.to(device), persistent=False)
         self.register_buffer('semantics', dataset.semantic_masks.to(device), persistent=False)
         self.register_buffer('poses', dataset.T_world_camera.to(device), persistent=False)

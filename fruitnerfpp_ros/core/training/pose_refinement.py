@@ -42,12 +42,14 @@ class PoseRefinement(nn.Module):
 
     Args:
         trained: [V] bool, the views whose poses are refined (the training views).
+        initial: optional [V, 6] starting corrections (the pose alignment's); zeros by default.
     """
 
-    def __init__(self, trained: torch.Tensor) -> None:
+    def __init__(self, trained: torch.Tensor, initial: np.ndarray | torch.Tensor | None = None) -> None:
         super().__init__()
         self.register_buffer('trained', torch.as_tensor(trained, dtype=torch.bool).clone())
-        self.correction = nn.Parameter(torch.zeros(len(self.trained), 6))
+        start = torch.zeros(len(self.trained), 6) if initial is None else torch.as_tensor(initial, dtype=torch.float32)
+        self.correction = nn.Parameter(start.clone())
 
     def forward(self, T_world_camera: torch.Tensor) -> torch.Tensor:
         """The corrected poses [V, 4, 4] of the recorded ones [V, 4, 4]."""

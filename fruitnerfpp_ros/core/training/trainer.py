@@ -255,11 +255,11 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     if scale.source == 'default':
         log.warning('could not measure the fruit size from the masks (%d fruit voxels); using %.3f m: set '
                     'scale.fruit_diameter_m if that is far off', scale.n_fruit_voxels, scale.fruit_diameter_m)
-    model = FruitNeRFModel(config, dataset, aabb, scale.fruit_diameter_m, dev)
-    if alignment is not None:  # the geometry stage's pose corrections start at the alignment's (a resume: its own)
+    # the geometry stage's pose corrections start at the alignment's (a resume: at its checkpoint's)
+    model = FruitNeRFModel(config, dataset, aabb, scale.fruit_diameter_m, dev,
+                           None if alignment is None else alignment.correction)
+    if alignment is not None:
         atomic_write_text(run.root / POSE_ALIGNMENT_JSON, json.dumps(alignment.report, indent=1))
-        with torch.no_grad():
-            model.pose_refinement.correction.copy_(torch.as_tensor(alignment.correction, dtype=torch.float32))
     if model.depth_check is not None:  # RGB-D: which views' depth agreed with their neighbours'
         atomic_write_text(run.root / 'depth_check.json', json.dumps(model.depth_check.to_json(), indent=1))
     generator = torch.Generator().manual_seed(config.seed)
@@ -299,10 +299,8 @@ def _corrected(dataset: SceneDataset, correction: np.ndarray) -> torch.Tensor:
     """The dataset's poses with ``correction`` [V, 6] applied as :class:`PoseRefinement` applies it."""
     trained = torch.zeros(dataset.num_views, dtype=torch.bool)
     trained[dataset.train_indices] = True
-    corrections = PoseRefinement(trained)
     with torch.no_grad():
-        corrections.correction.copy_(torch.as_tensor(correction, dtype=torch.float32))
-        return corrections(dataset.T_world_camera)
+        return PoseRefinement(trained, correction)(dataset.T_world_camera)
 
 
 def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDataset, config: TrainConfig, run: RunDir,

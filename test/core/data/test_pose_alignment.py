@@ -19,8 +19,8 @@ from fruitnerfpp_ros.core.data.dataset import load_dataset
 from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignment, PoseAlignmentConfig, align_poses
 from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
+from fruitnerfpp_ros.core.evaluation.pose_errors import pose_errors
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
-from fruitnerfpp_ros.core.tracking.camera import PinholeView
 from fruitnerfpp_ros.core.training import train
 from fruitnerfpp_ros.core.training.trained_scene import load_trained_scene
 from test.core.training.stand_in_scene import make_sphere_scene
@@ -56,14 +56,9 @@ def _corrected(T: np.ndarray, correction: np.ndarray) -> np.ndarray:
 def _fruit_px(T: np.ndarray, truth: np.ndarray, dataset_dir: Path) -> float:
     """Median distance (px) between the fruit centres projected with poses ``T`` and with the true poses."""
     transforms = read_transforms(dataset_dir)
+    cameras = [frame.intrinsics or transforms.intrinsics for frame in transforms.frames]
     centres = np.asarray(load_ground_truth(dataset_dir / 'gt_fruits.json').centers)
-    px = []
-    for pose, exact, frame in zip(T, truth, transforms.frames):
-        camera = frame.intrinsics or transforms.intrinsics
-        true_uv, depth = PinholeView.from_intrinsics(exact, camera).project(centres)
-        uv, _ = PinholeView.from_intrinsics(pose, camera).project(centres)
-        px.append(np.linalg.norm(uv - true_uv, axis=1)[depth > 0.1])
-    return float(np.median(np.concatenate(px)))
+    return pose_errors(T, truth, cameras, centres)['reprojection_px_median']
 
 
 def test_the_alignment_undoes_most_of_the_odometry_noise(twins: tuple[Path, Path]) -> None:
