@@ -29,6 +29,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial.transform import Rotation
 
+from fruitnerfpp_ros.errors import ConfigError
+
 __all__ = ['PoseAlignmentConfig', 'PoseAlignment', 'align_poses']
 
 
@@ -74,6 +76,11 @@ class PoseAlignmentConfig:
     """Adjustments; each weighs the observations by a Cauchy weight of the last one's reprojection error (a wrong
     match fades out, the priors stay Gaussian)."""
 
+    def __post_init__(self) -> None:
+        if self.min_tracks < 1 or self.rounds < 1 or not 1 <= self.check_neighbours <= self.neighbours:
+            raise ConfigError('pose_alignment: min_tracks and rounds must be >= 1, and 1 <= check_neighbours <= '
+                              'neighbours')
+
 
 @dataclass(frozen=True)
 class PoseAlignment:
@@ -102,27 +109,19 @@ def align_poses(images: np.ndarray, intrinsics: np.ndarray, T_world_camera: np.n
     T = np.asarray(T_world_camera, np.float64)
     K = np.asarray(intrinsics, np.float64)
     V = len(T)
-    zero = np.zeros((V, 6))
     features = [_features(images[v], None if valid is None else valid[v], config) for v in range(V)]
-    agree = 'the recorded poses agree with the images'
     # The check first, on each view's nearest neighbours only (a quarter of the matching): most datasets stop here.
-    check = _measured_tracks(features, T, K, config, config.check_neighbours)
-    if check[3]['tracks'] >= config.min_tracks and check[3]['reprojection_px_before'] < config.skip_below_px:
-        check[3].pop('points')
-        return PoseAlignment(zero, {**check[3], 'applied': False, 'reason': agree})
-    too_few = f'fewer than {config.min_tracks} tracks'
-    if check[3]['tracks'] * config.neighbours < config.min_tracks * config.check_neighbours:  # all pairs: too few too
-        check[3].pop('points', None)
-        return PoseAlignment(zero, {**check[3], 'applied': False, 'reason': too_few})
-    track, view, uv, report = check if config.check_neighbours >= config.neighbours else \
-        _measured_tracks(features, T, K, config, config.neighbours)
-    if track is None:
-        return PoseAlignment(zero, {**report, 'applied': False, 'reason': 'no view pair matched'})
-    X = report.pop('points')
-    if len(X) < config.min_tracks:
-        return PoseAlignment(zero, {**report, 'applied': False, 'reason': too_few})
-    if report['reprojection_px_before'] < config.skip_below_px:
-        return PoseAlignment(zero, {**report, 'applied': False, 'reason': agree})
+    tracks = _measured_tracks(features, T, K, config, config.check_neighbours)
+    # with all neighbours, about neighbours / check_neighbours times the tracks: too few is too few there as well
+    enough = len(tracks.points) * config.neighbours >= config.min_tracks * config.check_neighbours
+    if enough and not tracks.agree(config) and config.check_neighbours < config.neighbours:
+        tracks = _measured_tracks(features, T, K, config, config.neighbours)
+    reason = ('the recorded poses agree with the images' if tracks.agree(config) else
+              f'fewer than {config.min_tracks} tracks' if len(tracks.points) < config.min_tracks else None)
+    if reason is not None:
+        return PoseAlignment(np.zeros((V, 6)), {**tracks.report, 'applied': False, 'reason': reason})
+    report = dict(tracks.report)
+    track, view, uv, X = tracks.track, tracks.view, tracks.uv, tracks.points
     correction, after = _bundle_adjust(T, K, X, track, view, uv, config)
     angles = np.rad2deg(np.linalg.norm(correction[:, :3], axis=1))
     report.update(applied=True, reprojection_px_after=round(float(np.median(after)), 3),
@@ -131,16 +130,36 @@ def align_poses(images: np.ndarray, intrinsics: np.ndarray, T_world_camera: np.n
     return PoseAlignment(correction, report)
 
 
-def _measured_tracks(features: list, T: np.ndarray, K: np.ndarray, config: PoseAlignmentConfig, neighbours: int
-                     ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None, dict]:
-    """The tracks of matches with ``neighbours`` nearest views, those that reproject within ``max_track_error_px``
-    from the recorded poses: (track id, view, pixel) per observation and a report whose ``points`` are the tracks'
-    triangulated points (None for all three when no pair matched)."""
+@dataclass(frozen=True)
+class _Tracks:
+    """Observations of the feature tracks that reproject within ``max_track_error_px`` from the recorded poses."""
+
+    track: np.ndarray
+    """[M] track id of each observation (0..P-1)."""
+    view: np.ndarray
+    """[M] view of each observation."""
+    uv: np.ndarray
+    """[M, 2] pixel of each observation."""
+    points: np.ndarray
+    """[P, 3] each track's point, triangulated from the recorded poses."""
+    report: dict
+    """View pairs, tracks, observations, ``reprojection_px_before`` (median; None without tracks)."""
+
+    def agree(self, config: PoseAlignmentConfig) -> bool:
+        """Enough tracks, and the recorded poses reproject them within ``skip_below_px``."""
+        before = self.report['reprojection_px_before']
+        return len(self.points) >= max(config.min_tracks, 1) and before < config.skip_below_px
+
+
+def _measured_tracks(features: list, T: np.ndarray, K: np.ndarray, config: PoseAlignmentConfig,
+                     neighbours: int) -> _Tracks:
+    """The tracks of the matches with each view's ``neighbours`` nearest views."""
     edges, pairs = _matches(features, T, config, neighbours)
     report = {'views': len(T), 'features_median': int(np.median([len(k) for k, _ in features])) if len(T) else 0,
-              'pairs': pairs, 'tracks': 0}
+              'pairs': pairs, 'tracks': 0, 'observations': 0, 'reprojection_px_before': None}
     if len(edges) == 0:
-        return None, None, None, report
+        empty = np.zeros(0, np.int64)
+        return _Tracks(empty, empty, np.zeros((0, 2)), np.zeros((0, 3)), report)
     view_of, points_px = _observations(features)
     track, view, uv = _tracks(edges, view_of, points_px, len(T))
     X = _triangulate(T, K, track, view, uv)
@@ -150,9 +169,8 @@ def _measured_tracks(features: list, T: np.ndarray, K: np.ndarray, config: PoseA
     keep = (worst < config.max_track_error_px)[track]
     kept_tracks, track = np.unique(track[keep], return_inverse=True)
     report.update(tracks=len(kept_tracks), observations=int(keep.sum()),
-                  reprojection_px_before=round(float(np.median(error[keep])), 3) if keep.any() else None,
-                  points=X[kept_tracks])
-    return track, view[keep], uv[keep], report
+                  reprojection_px_before=round(float(np.median(error[keep])), 3) if keep.any() else None)
+    return _Tracks(track, view[keep], uv[keep], X[kept_tracks], report)
 
 
 def _features(image: np.ndarray, valid: np.ndarray | None, config: PoseAlignmentConfig

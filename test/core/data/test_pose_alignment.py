@@ -23,6 +23,7 @@ from fruitnerfpp_ros.core.evaluation.pose_errors import pose_errors
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
 from fruitnerfpp_ros.core.training import train
 from fruitnerfpp_ros.core.training.trained_scene import load_trained_scene
+from fruitnerfpp_ros.errors import ConfigError
 from test.core.training.stand_in_scene import make_sphere_scene
 from test.core.training.test_trainer import MICRO
 
@@ -115,3 +116,10 @@ def test_training_starts_from_the_alignment(tmp_path: Path, monkeypatch: pytest.
     assert torch.equal(poses[held_out], data.T_world_camera[held_out])  # held-out views keep their recorded pose
     expected = _corrected(data.T_world_camera[views].double().numpy(), wanted)
     np.testing.assert_allclose(poses[views].double().numpy(), expected, atol=1e-5)
+
+
+def test_a_config_that_cannot_work_is_refused() -> None:
+    with pytest.raises(ConfigError, match='min_tracks and rounds must be >= 1'):
+        PoseAlignmentConfig(min_tracks=0)
+    with pytest.raises(ConfigError, match='check_neighbours <= neighbours'):
+        PoseAlignmentConfig(check_neighbours=9, neighbours=8)
