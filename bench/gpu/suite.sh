@@ -53,7 +53,10 @@ while kill -0 "$gpu_pid" 2>/dev/null; do
 done
 wait
 echo "gpu suite + cpu scenes: $(( $(date +%s) - start )) s" | tee -a "$work/machine.txt"
-for s in "$work"/g/*/ "$work"/g2/*/ "$work"/cf/*/; do [ -d "$s" ] && tail -c 3000 "$s/scene.log" > "$s/scene_tail.log" 2>/dev/null; done
+# each scene's log without its progress bars (the end of it, which a scene cut by the deadline reached)
+for s in "$work"/g/*/ "$work"/g2/*/ "$work"/cf/*/; do
+  [ -f "$s/scene.log" ] && tr '\r' '\n' < "$s/scene.log" | grep -v '%|' | tail -c 20000 > "$s/scene_tail.log"
+done
 (cd "$work" && tar czf "$out/suite.tgz" --exclude='*/data' --exclude=checkpoints --exclude=keyframes --exclude=bag \
   --exclude='*.npz' --exclude='*.ply' --exclude='*/scene.log' --exclude='*.mcap' --exclude='*.db3' .)
 ls -la "$out"; cat "$work/machine.txt"; tail -5 "$work/gpu_util.txt" 2>/dev/null

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Iterable
 
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
-from fruitnerfpp_ros.core.benchmark.result import SceneResult, SuiteResult
+from fruitnerfpp_ros.core.benchmark.result import TIME_KEYS, SceneResult, SuiteResult
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['accuracy_table', 'cost_table', 'scenes_table', 'summary_lines', 'render_markdown', 'render_log_section',
@@ -82,13 +82,13 @@ def _signed(value: float) -> str:
 
 
 def cost_table(suite: SuiteResult) -> str:
-    """Per scene: wall seconds of each step (synth, fallback masks, bag keyframes, the three training stages,
-    export, count, tracking, whole scene) and peak memory (process RSS; CUDA peak allocation on the GPU)."""
-    header = ['scene', 'synth s', 'masks s', 'keyframes s', 'geometry s', 'semantic s', 'instance s', 'export s',
-              'count s', 'tracking s', 'total s', 'peak RSS MiB', 'CUDA MiB']
-    keys = ('synth', 'segment', 'keyframes', 'geometry', 'semantic', 'instance', 'export', 'count', 'tracking',
-            'total')
-    rows = [[s.name, *(_num(s.times_s.get(k), 1) for k in keys), _num(s.peak_rss_mb, 0),
+    """Per scene: wall seconds of each step (:data:`TIME_KEYS`: synth, fallback masks, bag keyframes, training's
+    preparation, the three training stages, held-out evaluation, checkpoint writes, export, count, tracking, whole
+    scene) and peak memory (process RSS; CUDA peak allocation on the GPU)."""
+    header = ['scene', 'synth s', 'masks s', 'keyframes s', 'prepare s', 'geometry s', 'semantic s', 'instance s',
+              'held-out eval s', 'checkpoints s', 'export s', 'count s', 'tracking s', 'total s', 'peak RSS MiB',
+              'CUDA MiB']
+    rows = [[s.name, *(_num(s.times_s.get(k), 1) for k in TIME_KEYS), _num(s.peak_rss_mb, 0),
              _num(s.cuda_max_allocated_mb, 0)] for s in suite.scenes]
     return _table(header, rows, 'l' + 'r' * (len(header) - 1))
 

@@ -14,9 +14,11 @@ __all__ = ['CounterScore', 'SceneResult', 'SuiteResult', 'ACCURACY_FORMAT_VERSIO
 
 ACCURACY_FORMAT_VERSION = 1
 #: Keys of :attr:`SceneResult.times_s`, in report order: scene generation (and bag writing), fallback masks, bag
-#: replay's keyframe collection, the three training stages, export, clustering, the tracking peer, the whole scene.
-TIME_KEYS = ('synth', 'segment', 'keyframes', 'geometry', 'semantic', 'instance', 'export', 'count', 'tracking',
-             'total')
+#: replay's keyframe collection, training's preparation (dataset read, pose alignment, scene measurement, model),
+#: the three training stages, the held-out evaluations and checkpoint writes between them, export, clustering, the
+#: tracking peer, the whole scene.
+TIME_KEYS = ('synth', 'segment', 'keyframes', 'prepare', 'geometry', 'semantic', 'instance', 'evaluate',
+             'checkpoint', 'export', 'count', 'tracking', 'total')
 
 
 @dataclass(frozen=True)

@@ -198,6 +198,9 @@ def _pipeline_figures(result: PipelineResult, record: _Record) -> None:
     stages = tuple(getattr(summary, 'stages', ()) or ())
     for stage in stages:
         record.times[stage.name] = float(stage.wall_s)
+    if summary is not None:
+        record.times.update(prepare=float(summary.prepare_s), evaluate=float(summary.evaluate_s),
+                            checkpoint=float(summary.checkpoint_s))
     if stages:
         last = stages[-1].eval
         record.values.update(psnr_db=float(last.psnr), semantic_iou=float(last.semantic_iou),

@@ -80,6 +80,10 @@ class TrainSummary:
         stopped: True when ``stop_event`` ended training early (a checkpoint holds the state).
         aabb: [2, 3] scene box, metres.
         scale: the scene's fruit diameter and fruit region.
+        prepare_s: wall seconds of this call before the first training step: the dataset read, the pose
+            alignment, the scene measurement, the model built.
+        evaluate_s: wall seconds of this call's held-out evaluations (stage ends).
+        checkpoint_s: wall seconds of this call's checkpoint writes.
     """
 
     run_dir: Path
@@ -88,6 +92,9 @@ class TrainSummary:
     stopped: bool
     aabb: np.ndarray
     scale: SceneScale
+    prepare_s: float = 0.0
+    evaluate_s: float = 0.0
+    checkpoint_s: float = 0.0
 
     @property
     def completed(self) -> bool:
@@ -111,6 +118,14 @@ class _Progress:
     stage_wall: float = 0.0
     last_loss: float = float('nan')
     summaries: list[StageSummary] | None = None
+    evaluate_s: float = 0.0
+    """Held-out evaluation seconds of this call (not checkpointed)."""
+    call_started: float = dataclasses.field(default_factory=time.perf_counter)
+    """When this call of :func:`train` started (``time.perf_counter``; not checkpointed)."""
+
+    def elapsed_s(self) -> float:
+        """Wall seconds since this call of :func:`train` started (metrics records: the run's timeline)."""
+        return round(time.perf_counter() - self.call_started, 3)
 
     def to_state(self) -> dict[str, Any]:
         return {'stage': self.stage, 'step': self.step, 'global_step': self.global_step,
@@ -131,8 +146,11 @@ class _Checkpointer:
                  model: FruitNeRFModel, generator: torch.Generator) -> None:
         self.run, self.config, self.dataset_dir, self.aabb, self.scale = run, config, dataset_dir, aabb, scale
         self.model, self.generator = model, generator
+        self.save_s = 0.0
+        """Seconds spent writing checkpoints so far."""
 
     def save(self, progress: _Progress, optimizer: torch.optim.Optimizer | None) -> None:
+        started = time.perf_counter()
         model = self.model
         save_checkpoint({
             'version': CHECKPOINT_VERSION, 'config': config_to_mapping(self.config),
@@ -143,6 +161,7 @@ class _Checkpointer:
             'optimizer': None if optimizer is None else optimizer.state_dict(),
             'generator': self.generator.get_state(),
         }, self.run.latest_checkpoint)
+        self.save_s += time.perf_counter() - started
 
     def restore(self, state: dict[str, Any]) -> tuple[_Progress, dict[str, Any] | None]:
         """Load the model and generator; returns the counters and the optimiser state (None at a stage start)."""
@@ -232,6 +251,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     Raises:
         DatasetError: bad dataset. CheckpointError: unreadable checkpoint. TrainingError: run dir in use.
     """
+    started = time.perf_counter()
     dev = resolve_device(device)
     run = RunDir(run_dir)
     config, state = _resolved_config(run, config, resume)
@@ -269,14 +289,18 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
         counters, optimizer_state = checkpointer.restore(state)
     if state is not None or resume:  # a resumed run keeps only what its checkpoint holds (none yet: nothing)
         run.truncate_metrics(counters.global_step)
+    counters.call_started = started
     stopped = False
+    prepare_s = time.perf_counter() - started
+    log.info('training prepared in %.1f s (dataset, pose alignment, scene measurement, model)', prepare_s)
     while counters.stage < len(stages) and not stopped:
         stopped = _run_stage(stages[counters.stage], model, dataset, config, run, checkpointer, counters,
                              optimizer_state, progress, stop_event, show_progress)
         optimizer_state = None
     for p in model.parameters():
         p.requires_grad_(False)
-    return TrainSummary(run.root, str(dev), tuple(counters.summaries or ()), stopped, aabb, scale)
+    return TrainSummary(run.root, str(dev), tuple(counters.summaries or ()), stopped, aabb, scale, prepare_s,
+                        counters.evaluate_s, checkpointer.save_s)
 
 
 def _aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment | None:
@@ -335,7 +359,7 @@ def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDatase
                 bar.set_postfix({k: f'{v:.4g}' for k, v in shown.items()})
             if counters.step % config.log_every == 0 or counters.step == stage.iterations:
                 run.append_metrics({'stage': stage.name, 'step': counters.step, 'global_step': counters.global_step,
-                                    'wall_s': round(counters.stage_wall, 3),
+                                    'wall_s': round(counters.stage_wall, 3), 'elapsed_s': counters.elapsed_s(),
                                     'occupied_fraction': model.grid.occupied_fraction, **record})
                 emit(ProgressEvent(stage.phase, counters.step, stage.iterations,
                                    ' '.join(f'{k} {v:.4g}' for k, v in shown.items())))
@@ -356,10 +380,13 @@ def _finish_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDat
     model.field.eval()
     eval_views = [int(v) for v in dataset.eval_indices[:config.eval_max_views]]
     # the heads a stage has not trained yet are not rendered (their figures are NaN: null in metrics.jsonl)
+    started = time.perf_counter()
     metrics = evaluate_views(model.field, model.grid, dataset, eval_views, model.settings, config.render.chunk_rays,
                              semantic=stage.name != 'geometry', instance=stage.name == 'instance')
+    counters.evaluate_s += time.perf_counter() - started
     run.append_metrics({'stage': stage.name, 'event': 'stage_end', 'step': counters.step,
                         'global_step': counters.global_step, 'wall_s': round(counters.stage_wall, 3),
+                        'elapsed_s': counters.elapsed_s(), 'evaluate_s': round(time.perf_counter() - started, 3),
                         'eval_psnr': metrics.psnr, 'eval_semantic_iou': metrics.semantic_iou,
                         'eval_instance_acc': metrics.instance_acc, 'eval_instance_chance': metrics.instance_chance,
                         'eval_views': metrics.num_views})

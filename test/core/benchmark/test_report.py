@@ -18,8 +18,9 @@ def _scene(name: str, f1: float, peer_f1: float, **values: object) -> SceneResul
                        peer=CounterScore(12, 8, 0.7, peer_f1, peer_f1), gt_count=11, gt_seen=10, n_views=48,
                        psnr_db=21.5, semantic_iou=0.61, instance_acc=0.83, box_size_m=(2.0, 2.5, 3.0), voxel_mm=9.4,
                        diameter_m=0.075, gt_diameter_m=0.072,
-                       times_s={'synth': 2.0, 'geometry': 60.0, 'semantic': 30.0, 'instance': 20.0, 'export': 5.0,
-                                'count': 1.5, 'tracking': 0.4, 'total': 121.0},
+                       times_s={'synth': 2.0, 'prepare': 3.5, 'geometry': 60.0, 'semantic': 30.0, 'instance': 20.0,
+                                'evaluate': 0.75, 'checkpoint': 0.25, 'export': 5.0, 'count': 1.5, 'tracking': 0.4,
+                                'total': 121.0},
                        peak_rss_mb=1500.0, picture=f'{name}/count.png', **values)  # type: ignore[arg-type]
 
 
@@ -55,7 +56,8 @@ def test_markdown_tables(suite: SuiteResult) -> None:
     assert '- tracking peer: mean F1 **0.875**, worst 0.800 (a) over 2 of 3 scenes' in text
     assert '- failed scenes: 1: broken' in text and '- total time: 600 s (10.0 min), 2 scene(s) at once' in text
     time_row = next(line for line in text.splitlines() if line.startswith('| a | 2.0 |'))
-    assert time_row == '| a | 2.0 | – | – | 60.0 | 30.0 | 20.0 | 5.0 | 1.5 | 0.4 | 121.0 | 1500 | – |'
+    assert time_row == ('| a | 2.0 | – | – | 3.5 | 60.0 | 30.0 | 20.0 | 0.8 | 0.2 | 5.0 | 1.5 | 0.4 | 121.0 | 1500 '
+                        '| – |')
     assert '| b | rosbag2 + replay | axis of b |' in text and '### Errors' in text
 
 

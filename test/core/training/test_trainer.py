@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import threading
+import time
 from pathlib import Path
 
 import cv2
@@ -44,8 +45,13 @@ def _assert_same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> None
 
 def test_run_dir_layout_and_metrics(scene: Path, tmp_path: Path) -> None:
     events: list[ProgressEvent] = []
+    started = time.perf_counter()
     summary = train(scene, tmp_path / 'run', MICRO, device='cpu', progress=events.append)
+    wall = time.perf_counter() - started
     assert summary.completed and [s.name for s in summary.stages] == ['geometry', 'semantic', 'instance']
+    # the call's time, accounted for in disjoint parts: preparation, steps, evaluations, checkpoint writes
+    parts = (summary.prepare_s, *(s.wall_s for s in summary.stages), summary.evaluate_s, summary.checkpoint_s)
+    assert min(parts) > 0.0 and sum(parts) <= wall
     run = RunDir(tmp_path / 'run')
     assert load_config(TrainConfig, run.config_path) == MICRO
     assert run.latest_checkpoint.is_file() and not list(run.checkpoint_dir.glob('*.tmp'))
@@ -53,6 +59,10 @@ def test_run_dir_layout_and_metrics(scene: Path, tmp_path: Path) -> None:
     ends = [r for r in records if r.get('event') == 'stage_end']
     assert [r['stage'] for r in ends] == ['geometry', 'semantic', 'instance']
     assert all({'eval_psnr', 'eval_semantic_iou', 'eval_instance_acc'} <= r.keys() for r in ends)
+    # the run's timeline: each stage ends after the preparation and its own steps, within the call
+    elapsed = [r['elapsed_s'] for r in ends]
+    assert summary.prepare_s + summary.stages[0].wall_s < elapsed[0] < elapsed[1] < elapsed[2] <= wall
+    assert sum(r['evaluate_s'] for r in ends) == pytest.approx(summary.evaluate_s, abs=0.01)
     assert sum(1 for r in records if r['stage'] == 'geometry' and 'event' not in r) == 3  # log_every 2 of 6
     assert {e.phase for e in events} == {'train:geometry', 'train:semantic', 'train:instance'}
     scene_ = load_trained_scene(tmp_path / 'run', device='cpu')
@@ -80,8 +90,9 @@ def test_stop_then_resume_is_bit_exact(scene: Path, tmp_path: Path) -> None:
     _assert_same(_state(tmp_path / 'full'), _state(tmp_path / 'split'))
     full_metrics = [r for r in RunDir(tmp_path / 'full').read_metrics() if 'wall_s' in r]
     split_metrics = [r for r in RunDir(tmp_path / 'split').read_metrics() if 'wall_s' in r]
-    strip = [{k: v for k, v in r.items() if k != 'wall_s'} for r in full_metrics]
-    assert strip == [{k: v for k, v in r.items() if k != 'wall_s'} for r in split_metrics]
+    timing = {'wall_s', 'elapsed_s', 'evaluate_s'}  # clocks differ between runs; everything else is bit-exact
+    strip = [{k: v for k, v in r.items() if k not in timing} for r in full_metrics]
+    assert strip == [{k: v for k, v in r.items() if k not in timing} for r in split_metrics]
 
 
 def test_resume_after_kill_from_periodic_checkpoint(scene: Path, tmp_path: Path) -> None:
