@@ -1,0 +1,60 @@
+"""bench/miss_kinds.py on a suite-shaped scene built by hand: four missed fruits, one of each kind by construction,
+and every other fruit matched."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
+from fruitnerfpp_ros.core.export.npz_io import write_npz
+from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+
+BENCH = Path(__file__).resolve().parents[1] / 'bench' / 'miss_kinds.py'
+
+
+def _module():
+    spec = importlib.util.spec_from_file_location('bench_miss_kinds', BENCH)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _surface(center: np.ndarray, radius: float, n: int, rng: np.random.Generator) -> np.ndarray:
+    direction = rng.normal(size=(n, 3))
+    return center + radius * direction / np.linalg.norm(direction, axis=1, keepdims=True)
+
+
+def test_each_kind_of_miss_is_told_apart(tiny_apple_dataset: Path, tmp_path: Path) -> None:
+    scene = tmp_path / 'suite' / 'apple'
+    shutil.copytree(tiny_apple_dataset, scene / 'data')
+    (scene / 'run').mkdir()
+    gt = load_ground_truth(scene / 'data' / 'gt_fruits.json')
+    assert len(gt.ids) >= 8 and np.all(gt.n_views_visible != 0)  # every fruit seen (no run config: all views)
+    gaps = np.linalg.norm(gt.centers[:, None] - gt.centers[None], axis=2) / gt.diameters[:, None]
+    np.fill_diagonal(gaps, np.inf)
+    other = int(np.argmax(gaps.min(axis=1)))                     # the loneliest fruit: no centre near it
+    assert gaps[other].min() > 2.5
+    no_points, merged = [g for g in range(len(gt.ids)) if g != other and gaps[other, g] > 2.5][:2]
+    counted = [g for g in range(len(gt.ids)) if g not in (no_points, merged, other)]
+    centers = [gt.centers[g] for g in counted] + [gt.centers[merged] + [0.5 * gt.diameters[merged], 0.0, 0.0]]
+    pairs = [[p, g] for p, g in enumerate(counted)]              # the extra centre near `merged` matched nothing
+    rng = np.random.default_rng(0)
+    xyz = np.concatenate([_surface(gt.centers[g], 0.5 * gt.diameters[g], 60, rng)
+                          for g in range(len(gt.ids)) if g != no_points])
+    n = len(xyz)
+    write_npz(scene / 'run' / 'cloud.npz', FruitPointCloud(
+        xyz.astype(np.float32), np.zeros((n, 3), np.uint8), np.ones(n, np.float32),
+        np.tile(np.eye(1, 8, dtype=np.float32), (n, 1)), spacing_m=0.01, fruit_diameter_m=0.075))
+    (scene / 'run' / 'counts.json').write_text(json.dumps(
+        {'fruits': [{'center': list(map(float, c))} for c in centers], 'stats': {'points_per_fruit': 60.0}}))
+    (scene / 'run' / 'eval.json').write_text(json.dumps({'hungarian': {'pairs': pairs}}))
+
+    kinds = _module().miss_kinds(scene)
+
+    assert kinds == {'seen': len(gt.ids), 'missed': 3, 'no points': 1, 'merged': 1, 'other': 1}
