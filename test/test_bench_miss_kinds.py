@@ -1,9 +1,8 @@
-"""bench/miss_kinds.py on a suite-shaped scene built by hand: four missed fruits, one of each kind by construction,
+"""bench/miss_kinds.py on a suite-shaped scene built by hand: three missed fruits, one of each kind by construction,
 and every other fruit matched."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 from pathlib import Path
@@ -13,16 +12,7 @@ import numpy as np
 from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
 from fruitnerfpp_ros.core.export.npz_io import write_npz
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
-
-BENCH = Path(__file__).resolve().parents[1] / 'bench' / 'miss_kinds.py'
-
-
-def _module():
-    spec = importlib.util.spec_from_file_location('bench_miss_kinds', BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from test.bench_scripts import load_bench_script
 
 
 def _surface(center: np.ndarray, radius: float, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -55,6 +45,6 @@ def test_each_kind_of_miss_is_told_apart(tiny_apple_dataset: Path, tmp_path: Pat
         {'fruits': [{'center': list(map(float, c))} for c in centers], 'stats': {'points_per_fruit': 60.0}}))
     (scene / 'run' / 'eval.json').write_text(json.dumps({'hungarian': {'pairs': pairs}}))
 
-    kinds = _module().miss_kinds(scene)
+    kinds = load_bench_script('miss_kinds').miss_kinds(scene)
 
     assert kinds == {'seen': len(gt.ids), 'missed': 3, 'no points': 1, 'merged': 1, 'other': 1}

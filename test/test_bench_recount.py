@@ -3,23 +3,13 @@ an export variant exports the cloud again from the checkpoint."""
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import shutil
 from pathlib import Path
 
 from fruitnerfpp_ros.core.pipeline import export_run
 from test.accuracy_targets import assert_counted
-
-BENCH = Path(__file__).resolve().parents[1] / 'bench' / 'recount.py'
-
-
-def _recount_module():
-    spec = importlib.util.spec_from_file_location('bench_recount', BENCH)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from test.bench_scripts import load_bench_script
 
 
 def test_export_variants_export_again_from_the_checkpoint(tiny_trained_run: Path, tiny_apple_dataset: Path,
@@ -28,7 +18,7 @@ def test_export_variants_export_again_from_the_checkpoint(tiny_trained_run: Path
     shutil.copytree(tiny_trained_run, scene / 'run')
     shutil.copytree(tiny_apple_dataset, scene / 'data')
     export_run(scene / 'run', device='cpu', dataset_dir=scene / 'data')       # the suite's own cloud
-    recount = _recount_module()
+    recount = load_bench_script('recount')
     from fruitnerfpp_ros.core.clustering.config import ClusterConfig
     variants = recount._variants(ClusterConfig(), ['same=export.min_views:2',       # the default: the same cloud
                                                    'strict=export.min_views:40'])   # most voxels fail it

@@ -118,14 +118,6 @@ class _Progress:
     stage_wall: float = 0.0
     last_loss: float = float('nan')
     summaries: list[StageSummary] | None = None
-    evaluate_s: float = 0.0
-    """Held-out evaluation seconds of this call (not checkpointed)."""
-    call_started: float = dataclasses.field(default_factory=time.perf_counter)
-    """When this call of :func:`train` started (``time.perf_counter``; not checkpointed)."""
-
-    def elapsed_s(self) -> float:
-        """Wall seconds since this call of :func:`train` started (metrics records: the run's timeline)."""
-        return round(time.perf_counter() - self.call_started, 3)
 
     def to_state(self) -> dict[str, Any]:
         return {'stage': self.stage, 'step': self.step, 'global_step': self.global_step,
@@ -139,15 +131,26 @@ class _Progress:
                    summaries)
 
 
+@dataclass
+class _CallClock:
+    """Where one call of :func:`train` spends its time (not checkpointed: a resumed run's call has its own)."""
+
+    started: float = dataclasses.field(default_factory=time.perf_counter)
+    evaluate_s: float = 0.0
+    checkpoint_s: float = 0.0
+
+    def elapsed_s(self) -> float:
+        """Wall seconds since the call started (metrics records: the run's timeline)."""
+        return round(time.perf_counter() - self.started, 3)
+
+
 class _Checkpointer:
     """Writes and restores the whole training state of one run."""
 
     def __init__(self, run: RunDir, config: TrainConfig, dataset_dir: Path, aabb: np.ndarray, scale: SceneScale,
-                 model: FruitNeRFModel, generator: torch.Generator) -> None:
+                 model: FruitNeRFModel, generator: torch.Generator, clock: _CallClock) -> None:
         self.run, self.config, self.dataset_dir, self.aabb, self.scale = run, config, dataset_dir, aabb, scale
-        self.model, self.generator = model, generator
-        self.save_s = 0.0
-        """Seconds spent writing checkpoints so far."""
+        self.model, self.generator, self.clock = model, generator, clock
 
     def save(self, progress: _Progress, optimizer: torch.optim.Optimizer | None) -> None:
         started = time.perf_counter()
@@ -161,7 +164,7 @@ class _Checkpointer:
             'optimizer': None if optimizer is None else optimizer.state_dict(),
             'generator': self.generator.get_state(),
         }, self.run.latest_checkpoint)
-        self.save_s += time.perf_counter() - started
+        self.clock.checkpoint_s += time.perf_counter() - started
 
     def restore(self, state: dict[str, Any]) -> tuple[_Progress, dict[str, Any] | None]:
         """Load the model and generator; returns the counters and the optimiser state (None at a stage start)."""
@@ -251,7 +254,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     Raises:
         DatasetError: bad dataset. CheckpointError: unreadable checkpoint. TrainingError: run dir in use.
     """
-    started = time.perf_counter()
+    clock = _CallClock()
     dev = resolve_device(device)
     run = RunDir(run_dir)
     config, state = _resolved_config(run, config, resume)
@@ -283,15 +286,14 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     if model.depth_check is not None:  # RGB-D: which views' depth agreed with their neighbours'
         atomic_write_text(run.root / 'depth_check.json', json.dumps(model.depth_check.to_json(), indent=1))
     generator = torch.Generator().manual_seed(config.seed)
-    checkpointer = _Checkpointer(run, config, dataset.dataset_dir, aabb, scale, model, generator)
+    checkpointer = _Checkpointer(run, config, dataset.dataset_dir, aabb, scale, model, generator, clock)
     counters, optimizer_state = _Progress(summaries=[]), None
     if state is not None:
         counters, optimizer_state = checkpointer.restore(state)
     if state is not None or resume:  # a resumed run keeps only what its checkpoint holds (none yet: nothing)
         run.truncate_metrics(counters.global_step)
-    counters.call_started = started
     stopped = False
-    prepare_s = time.perf_counter() - started
+    prepare_s = time.perf_counter() - clock.started
     log.info('training prepared in %.1f s (dataset, pose alignment, scene measurement, model)', prepare_s)
     while counters.stage < len(stages) and not stopped:
         stopped = _run_stage(stages[counters.stage], model, dataset, config, run, checkpointer, counters,
@@ -300,7 +302,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     for p in model.parameters():
         p.requires_grad_(False)
     return TrainSummary(run.root, str(dev), tuple(counters.summaries or ()), stopped, aabb, scale, prepare_s,
-                        counters.evaluate_s, checkpointer.save_s)
+                        clock.evaluate_s, clock.checkpoint_s)
 
 
 def _aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment | None:
@@ -343,7 +345,7 @@ def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDatase
         bar = tqdm(total=stage.iterations, initial=counters.step, desc=str(stage.phase), unit='step',
                    dynamic_ncols=True)
     model.field.train()
-    generator = checkpointer.generator
+    generator, clock = checkpointer.generator, checkpointer.clock
     try:
         while counters.step < stage.iterations:
             if stop_event is not None and stop_event.is_set():
@@ -359,7 +361,7 @@ def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDatase
                 bar.set_postfix({k: f'{v:.4g}' for k, v in shown.items()})
             if counters.step % config.log_every == 0 or counters.step == stage.iterations:
                 run.append_metrics({'stage': stage.name, 'step': counters.step, 'global_step': counters.global_step,
-                                    'wall_s': round(counters.stage_wall, 3), 'elapsed_s': counters.elapsed_s(),
+                                    'wall_s': round(counters.stage_wall, 3), 'elapsed_s': clock.elapsed_s(),
                                     'occupied_fraction': model.grid.occupied_fraction, **record})
                 emit(ProgressEvent(stage.phase, counters.step, stage.iterations,
                                    ' '.join(f'{k} {v:.4g}' for k, v in shown.items())))
@@ -368,13 +370,13 @@ def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDatase
     finally:
         if bar is not None:
             bar.close()
-    _finish_stage(stage, model, dataset, config, run, counters, emit)
+    _finish_stage(stage, model, dataset, config, run, counters, clock, emit)
     checkpointer.save(counters, None)
     return False
 
 
 def _finish_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDataset, config: TrainConfig,
-                  run: RunDir, counters: _Progress, emit: ProgressCallback) -> None:
+                  run: RunDir, counters: _Progress, clock: _CallClock, emit: ProgressCallback) -> None:
     """Held-out evaluation, the stage-end log line and summary; moves the counters to the next stage."""
     model.field.encoding.open_levels(1.0)  # every level from here on (coarse_to_fine_fraction 1 ends just short)
     model.field.eval()
@@ -383,10 +385,11 @@ def _finish_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDat
     started = time.perf_counter()
     metrics = evaluate_views(model.field, model.grid, dataset, eval_views, model.settings, config.render.chunk_rays,
                              semantic=stage.name != 'geometry', instance=stage.name == 'instance')
-    counters.evaluate_s += time.perf_counter() - started
+    evaluate_s = time.perf_counter() - started
+    clock.evaluate_s += evaluate_s
     run.append_metrics({'stage': stage.name, 'event': 'stage_end', 'step': counters.step,
                         'global_step': counters.global_step, 'wall_s': round(counters.stage_wall, 3),
-                        'elapsed_s': counters.elapsed_s(), 'evaluate_s': round(time.perf_counter() - started, 3),
+                        'elapsed_s': clock.elapsed_s(), 'evaluate_s': round(evaluate_s, 3),
                         'eval_psnr': metrics.psnr, 'eval_semantic_iou': metrics.semantic_iou,
                         'eval_instance_acc': metrics.instance_acc, 'eval_instance_chance': metrics.instance_chance,
                         'eval_views': metrics.num_views})
