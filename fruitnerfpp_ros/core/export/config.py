@@ -48,6 +48,18 @@ class ExportConfig:
     mask_dilation_px: int = 2
     """Surface: fruit masks are grown by this many pixels for that test (poses and masks are not exact)."""
 
+    behind_foliage: Literal['none', 'unsurfaced', 'all'] = 'unsurfaced'
+    """Surface: also the fruit a ray passes behind foliage. Along a fruit ray, every sample whose one-step opacity
+    reaches ``behind_min_alpha`` and whose fruit probability reaches ``behind_fruit_threshold`` is a candidate point,
+    whatever lies in front of it, and meets the same voxel tests (views, mask agreement) as the surface points.
+    ``unsurfaced``: only along the rays that gave no surface point; ``all``: along every fruit ray."""
+
+    behind_min_alpha: float = 0.3
+    """Surface, behind foliage: a candidate's one-step opacity, 1 - exp(-density x step)."""
+
+    behind_fruit_threshold: float = 0.8
+    """Surface, behind foliage: a candidate's fruit probability."""
+
     max_rays: int = 4_000_000
     """Surface: at most this many fruit pixels are rendered (a seeded subsample beyond)."""
 
@@ -125,5 +137,10 @@ class ExportConfig:
             raise ConfigError('ExportConfig: min_opacity and surface_fruit_threshold must be in [0, 1]')
         if not 0 <= self.min_mask_agreement <= 1 or self.mask_dilation_px < 0:
             raise ConfigError('ExportConfig: min_mask_agreement must be in [0, 1] and mask_dilation_px >= 0')
+        if self.behind_foliage not in ('none', 'unsurfaced', 'all'):
+            raise ConfigError('ExportConfig: behind_foliage must be none, unsurfaced or all, '
+                              f'not {self.behind_foliage!r}')
+        if not (0 < self.behind_min_alpha <= 1 and 0 <= self.behind_fruit_threshold <= 1):
+            raise ConfigError('ExportConfig: behind_min_alpha must be in (0, 1] and behind_fruit_threshold in [0, 1]')
         if self.min_views < 1 or self.max_rays < 1 or self.chunk_rays < 1 or self.max_chunk_samples < 1:
             raise ConfigError('ExportConfig: min_views, max_rays and chunk_rays must be >= 1')

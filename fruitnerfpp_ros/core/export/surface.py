@@ -2,13 +2,16 @@
 
 Every fruit pixel of every training view is rendered through the trained field; where its ray terminates (the
 median of its render weights) is a point on a fruit surface. A ray that stays semi-transparent (fog), or ends on
-something the field does not call fruit, gives no point. The points are merged on a voxel grid sized in fruit
-diameters (or in pixel footprints on the fruit, when a pixel is wider), and a voxel is kept only when at least
-``min_views`` different views put a point in it (one view's floater is not a fruit) and when it lies on a fruit
-pixel in at least ``min_mask_agreement`` of the training views it projects into (a point of fog or leaf in front of
-a fruit drifts off the fruit masks of the other views, while a fruit's surface stays on them wherever it is not
-hidden). No threshold here is a density in 1/m, so nothing depends on how opaque a briefly trained field became or
-on the size of the scene box.
+something the field does not call fruit, gives no surface point; along such a ray the samples that are dense and
+fruit, wherever they lie, are candidate points instead (``behind_foliage``): a briefly trained field often ends a
+fruit pixel's ray in a haze where leaves and the gaps between them were not told apart, with the fruit, dense and
+fruit, behind it. The points are merged on a voxel grid sized in fruit diameters (or in pixel footprints on the
+fruit, when a pixel is wider), and a voxel is kept only when at least ``min_views`` different views put a point in
+it (one view's floater is not a fruit) and when it lies on a fruit pixel in at least ``min_mask_agreement`` of the
+training views it projects into (a point of fog or leaf in front of a fruit drifts off the fruit masks of the other
+views, while a fruit's surface stays on them wherever it is not hidden). No threshold here is a density in 1/m, so
+nothing depends on how opaque a briefly trained field became or on the size of the scene box (the candidates'
+one-step opacity follows the marching step, which is set in fruit diameters).
 """
 
 from __future__ import annotations
@@ -28,8 +31,10 @@ from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.data.rays import RayBundle
+from fruitnerfpp_ros.core.rendering.marching import march_rays
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
-from fruitnerfpp_ros.core.rendering.renderer import RenderSettings, render_rays
+from fruitnerfpp_ros.core.rendering.renderer import RenderSettings, autocast_for, render_rays
 
 __all__ = ['SurfaceExportReport', 'export_surface_cloud', 'merge_on_voxels']
 
@@ -44,6 +49,7 @@ class SurfaceExportReport:
         n_rays: rays rendered (a subsample when there were more than ``max_rays``).
         n_opaque: rays whose opacity reached ``min_opacity``.
         n_fruit: of those, rays whose rendered fruit probability reached ``fruit_threshold``.
+        n_behind: candidate points of fruit behind foliage (``ExportConfig.behind_foliage``).
         n_voxels: voxels holding at least one surface point.
         n_multi_view: voxels with points from at least ``min_views`` views.
         n_kept: of those, voxels on the fruit masks of at least ``min_mask_agreement`` of the views (the cloud).
@@ -59,6 +65,7 @@ class SurfaceExportReport:
     n_rays: int
     n_opaque: int
     n_fruit: int
+    n_behind: int
     n_voxels: int
     n_multi_view: int
     n_kept: int
@@ -74,7 +81,8 @@ class SurfaceExportReport:
     def explain(self) -> str:
         """One line saying what each test kept (and, for an empty cloud, which test removed everything)."""
         line = (f'surface export: {self.n_rays} fruit-pixel rays of {self.views} views -> {self.n_opaque} opaque '
-                f'(>= {self.min_opacity:.2f}) -> {self.n_fruit} ending on fruit (p >= {self.fruit_threshold:.2f}) -> '
+                f'(>= {self.min_opacity:.2f}) -> {self.n_fruit} ending on fruit (p >= {self.fruit_threshold:.2f}) '
+                f'(+ {self.n_behind} points of fruit behind foliage) -> '
                 f'{self.n_voxels} voxels of {self.voxel_size_m * 1000:.1f} mm -> {self.n_multi_view} seen from >= '
                 f'{self.min_views} views -> {self.n_kept} on the fruit masks of >= {self.min_mask_agreement:.0%} of '
                 'the views')
@@ -83,7 +91,7 @@ class SurfaceExportReport:
                 line += '; EMPTY: the masks hold no fruit pixel'
             elif self.n_opaque == 0:
                 line += '; EMPTY: no fruit ray became opaque: the geometry did not train (check poses, steps)'
-            elif self.n_fruit == 0:
+            elif self.n_fruit + self.n_behind == 0:
                 line += '; EMPTY: no opaque ray ended on fruit: check the semantic stage and the masks'
             elif self.n_multi_view == 0:
                 line += '; EMPTY: no surface voxel was seen from enough views: lower min_views or check the poses'
@@ -171,6 +179,25 @@ def _fruit_pixels(masks: torch.Tensor, views: list[int], max_rays: int) -> tuple
     return (torch.cat(out) if out else torch.zeros((0, 3), dtype=torch.int64)), total
 
 
+def _behind_foliage(field: FruitField, grid: OccupancyGrid, settings: RenderSettings, rays: RayBundle,
+                    config: ExportConfig) -> tuple[torch.Tensor, ...]:
+    """Candidate fruit points along ``rays`` wherever they lie: (ray index [K], position [K, 3], distance [K],
+    embedding [K, D], rgb [K, 3], fruit probability [K]) of the samples that are dense and fruit."""
+    samples = march_rays(rays, grid, settings.step, near=settings.near)
+    with autocast_for(rays.origins.device, settings.mixed_precision):
+        geo = field.geometry(samples.positions)
+        alpha = 1.0 - torch.exp(-geo.density.float() * samples.step)
+        dense = torch.nonzero(alpha >= config.behind_min_alpha).squeeze(1)
+        prob = torch.sigmoid(field.fruit_logit(samples.positions[dense], geo.features[dense]).float())
+        at = dense[prob >= config.behind_fruit_threshold]
+        xyz, features = samples.positions[at], geo.features[at]
+        emb = F.normalize(field.embedding(xyz, features).float(), dim=-1)
+        rgb = field.rgb(features, samples.directions[at]).float().clamp(0, 1)
+    ray = samples.ray_index[at]
+    dist = ((xyz - rays.origins[ray]) * rays.directions[ray]).sum(1)
+    return ray, xyz, dist, emb, rgb, prob[prob >= config.behind_fruit_threshold]
+
+
 @torch.no_grad()
 def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: RenderSettings, dataset: SceneDataset,
                          T_world_camera: torch.Tensor, fruit_diameter_m: float, config: ExportConfig | None = None, *,
@@ -198,7 +225,7 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
     poses, intrinsics = T_world_camera.to(device), dataset.intrinsics.to(device)
     parts: dict[str, list[torch.Tensor]] = {k: [] for k in ('xyz', 'view', 'emb', 'rgb', 'prob', 'footprint')}
     focal = torch.sqrt(intrinsics[:, 0] * intrinsics[:, 1])
-    n_opaque = n_fruit = 0
+    n_opaque = n_fruit = n_behind = 0
     # a ray holds up to box diagonal / step samples before empty-space skipping: bound the samples of a chunk
     per_ray = float(torch.linalg.norm(grid.aabb[1] - grid.aabb[0])) / settings.step
     chunk = max(64, min(config.chunk_rays, int(config.max_chunk_samples / max(per_ray, 1.0))))
@@ -224,6 +251,19 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
         parts['rgb'].append(out.rgb[idx].float().clamp(0, 1))
         parts['prob'].append(prob[idx].clamp(0, 1))
         parts['footprint'].append(out.depth[idx] / focal[view[idx]])     # a pixel's width on the surface (m)
+        if config.behind_foliage != 'none':
+            source = torch.arange(len(view), device=device)
+            if config.behind_foliage == 'unsurfaced':
+                source = torch.nonzero(~fruit).squeeze(1)
+            if len(source):
+                ray, xyz, dist, emb, rgb, p = _behind_foliage(
+                    field, grid, settings, RayBundle(rays.origins[source], rays.directions[source]), config)
+                parts['xyz'].append(xyz)
+                parts['view'].append(view[source][ray])
+                parts['emb'].append(emb)
+                parts['rgb'].append(rgb)
+                parts['prob'].append(p)
+                n_behind += len(ray)
         if (c + 1) % max(1, n_chunks // 20) == 0 or c + 1 == n_chunks:
             progress(ProgressEvent(Phase.EXPORT, c + 1, n_chunks, f'{n_fruit} fruit surface points'))
     # voxels no finer than a pixel on the fruit: finer ones would hold one view's points each
@@ -232,7 +272,7 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
     dim = field.embedding_dim
     n_voxels = n_multi = n_kept = 0
     cloud = FruitPointCloud.empty(dim, spacing_m=voxel)
-    if n_fruit:
+    if n_fruit + n_behind:
         xyz = torch.cat(parts['xyz']).double()
         mean_xyz, means, n_views = merge_on_voxels(
             xyz, torch.cat(parts['view']),
@@ -248,7 +288,8 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
             cloud = FruitPointCloud(mean_xyz[kept].float().cpu().numpy(), rgb.cpu().numpy(),
                                     means['prob'][kept].float().cpu().numpy(), emb.cpu().numpy(), spacing_m=voxel)
     report = SurfaceExportReport(views=len(views), n_fruit_pixels=n_pixels, n_rays=len(hits), n_opaque=n_opaque,
-                                 n_fruit=n_fruit, n_voxels=n_voxels, n_multi_view=n_multi, n_kept=n_kept,
+                                 n_fruit=n_fruit, n_behind=n_behind, n_voxels=n_voxels, n_multi_view=n_multi,
+                                 n_kept=n_kept,
                                  voxel_size_m=voxel, fruit_diameter_m=fruit_diameter_m,
                                  min_opacity=config.min_opacity, fruit_threshold=config.surface_fruit_threshold,
                                  min_views=config.min_views, min_mask_agreement=config.min_mask_agreement,

@@ -17,19 +17,20 @@ AABB = np.array([[-1.2, -1.2, 0.0], [1.2, 1.2, 2.4]])
 
 class SphereNeRF(nn.Module):
     """Density ``density`` inside every sphere (1/m); fruit logit +8 in fruit spheres (and in the fog), -8 elsewhere;
-    embedding: one-hot of the sphere index. ``fog``: (centre, radius, density) of a fruit-labelled haze. ``faded``:
+    embedding: one-hot of the sphere index. ``fog``: (centre, radius, density) of a fruit-labelled haze. ``veil``: the
+    same for a haze of foliage (not fruit), as a briefly trained field leaves where leaves and gaps mix. ``faded``:
     sphere index -> density (1/m) for spheres the field renders semi-transparent."""
 
     def __init__(self, dataset_dir: Path, *, density: float = 400.0,
                  fog: tuple[np.ndarray, float, float] | None = None, faded: dict[int, float] | None = None,
-                 dim: int = 32) -> None:
+                 veil: tuple[np.ndarray, float, float] | None = None, dim: int = 32) -> None:
         super().__init__()
         spheres = np.load(dataset_dir / 'spheres.npz')
         self.register_buffer('centres', torch.as_tensor(spheres['centres'], dtype=torch.float32))
         self.register_buffer('radii', torch.as_tensor(spheres['radii'], dtype=torch.float32))
         self.register_buffer('is_fruit', torch.as_tensor(spheres['is_fruit']))
         self.register_buffer('aabb', torch.as_tensor(AABB, dtype=torch.float32))
-        self.density, self.fog, self.dim = density, fog, dim
+        self.density, self.fog, self.veil, self.dim = density, fog, veil, dim
         per_sphere = torch.full((len(self.centres),), float(density))
         for index, value in (faded or {}).items():
             per_sphere[index] = value
@@ -45,10 +46,11 @@ class SphereNeRF(nn.Module):
         inside, index = gap.min(dim=1)
         return inside <= 0, index
 
-    def _in_fog(self, xyz: torch.Tensor) -> torch.Tensor:
-        if self.fog is None:
+    def _in_fog(self, xyz: torch.Tensor, haze: tuple[np.ndarray, float, float] | None = None) -> torch.Tensor:
+        haze = self.fog if haze is None else haze
+        if haze is None:
             return torch.zeros(len(xyz), dtype=torch.bool, device=xyz.device)
-        centre, radius, _ = self.fog
+        centre, radius, _ = haze
         return torch.linalg.norm(xyz - torch.as_tensor(centre, dtype=xyz.dtype, device=xyz.device), dim=1) < radius
 
     def geometry(self, xyz: torch.Tensor) -> GeometryOutput:
@@ -56,6 +58,8 @@ class SphereNeRF(nn.Module):
         density = torch.where(inside, self.sphere_density[index], torch.tensor(0.0))
         if self.fog is not None:
             density = torch.where(self._in_fog(xyz) & ~inside, torch.tensor(float(self.fog[2])), density)
+        if self.veil is not None:
+            density = torch.where(self._in_fog(xyz, self.veil) & ~inside, torch.tensor(float(self.veil[2])), density)
         return GeometryOutput(density, index[:, None].float())
 
     def rgb(self, features: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:

@@ -45,3 +45,16 @@ def test_every_reader_of_a_pipeline_file_rejects_a_misspelt_section(tmp_path: Pa
     path.write_text('export: 0.7\n')
     with pytest.raises(ConfigError, match='section export must be a mapping'):
         load_section(ExportConfig, path, 'export')
+
+
+def test_behind_foliage_settings_are_checked(tmp_path: Path) -> None:
+    path = tmp_path / 'run.yaml'
+    path.write_text('export: {behind_foliage: some}\n')
+    with pytest.raises(ConfigError, match=r"behind_foliage: 'some' is not one of \['none', 'unsurfaced', 'all'\]"):
+        load_section(ExportConfig, path, 'export')
+    with pytest.raises(ConfigError, match="behind_foliage must be none, unsurfaced or all, not 'some'"):
+        ExportConfig(behind_foliage='some')
+    with pytest.raises(ConfigError, match='behind_min_alpha'):
+        ExportConfig(behind_min_alpha=0.0)
+    path.write_text('export: {behind_foliage: none}\n')
+    assert load_section(ExportConfig, path, 'export').behind_foliage == 'none'

@@ -70,6 +70,27 @@ def test_a_semi_transparent_fruit_gives_no_point(scene: Path) -> None:
     assert near(_export(scene, SphereNeRF(scene))[0]) > 0  # the opaque fruit 0 is exported
 
 
+def test_a_fruit_behind_foliage_is_exported_on_the_fruit(scene: Path) -> None:
+    """Fruit 0 wrapped in a haze of foliage (15/m over >= 12 cm in front of it: opacity >= 0.83 before any fruit
+    ray reaches it, as a briefly trained field leaves leaves and gaps): every fruit ray of fruit 0 ends in the haze,
+    which is not fruit, so the surface alone has nothing there; the fruit behind it is found, on the fruit, and
+    counted, and the haze gives no point."""
+    spheres = np.load(scene / 'spheres.npz')
+    centre, radius = spheres['centres'][0], spheres['radii'][0]
+    field = SphereNeRF(scene, veil=(centre, 0.2, 15.0))
+    near = lambda cloud: int((np.linalg.norm(cloud.xyz - centre, axis=1) < 0.1).sum())  # noqa: E731
+    surface_only, report_off = _export(scene, field, behind_foliage='none')
+    assert near(surface_only) == 0 and report_off.n_behind == 0
+    cloud, report = _export(scene, field)        # the default: behind foliage, along the rays with no surface point
+    assert report.n_behind > 0 and near(cloud) >= 5
+    at = cloud.xyz[np.linalg.norm(cloud.xyz - centre, axis=1) < 0.2]   # also what the haze around it could give
+    assert np.all(np.linalg.norm(at - centre, axis=1) <= radius + report.voxel_size_m)   # on or in the fruit
+    counted = count_fruits(dataclasses.replace(cloud, fruit_diameter_m=FRUIT_D), ClusterConfig(n_jobs=1))
+    assert np.linalg.norm(counted.centers() - centre, axis=1).min() < 0.09
+    assert count_fruits(dataclasses.replace(surface_only, fruit_diameter_m=FRUIT_D),
+                        ClusterConfig(n_jobs=1)).count == counted.count - 1
+
+
 def test_a_floater_seen_by_one_view_is_not_a_fruit(scene: Path) -> None:
     """A fruit-labelled floater in front of a fruit of view 0 (inside the box) catches that view's fruit rays; the
     other views' masks disown it."""
