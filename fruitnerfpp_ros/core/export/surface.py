@@ -181,21 +181,21 @@ def _fruit_pixels(masks: torch.Tensor, views: list[int], max_rays: int) -> tuple
 
 def _behind_foliage(field: FruitField, grid: OccupancyGrid, settings: RenderSettings, rays: RayBundle,
                     config: ExportConfig) -> tuple[torch.Tensor, ...]:
-    """Candidate fruit points along ``rays`` wherever they lie: (ray index [K], position [K, 3], distance [K],
-    embedding [K, D], rgb [K, 3], fruit probability [K]) of the samples that are dense and fruit."""
+    """Candidate fruit points along ``rays`` wherever they lie: (ray index [K], position [K, 3], embedding [K, D],
+    rgb [K, 3], fruit probability [K]) of the samples that are dense and fruit. Every sample is evaluated (no stop
+    behind an opaque haze: what lies behind it is the point)."""
     samples = march_rays(rays, grid, settings.step, near=settings.near)
     with autocast_for(rays.origins.device, settings.mixed_precision):
         geo = field.geometry(samples.positions)
         alpha = 1.0 - torch.exp(-geo.density.float() * samples.step)
         dense = torch.nonzero(alpha >= config.behind_min_alpha).squeeze(1)
         prob = torch.sigmoid(field.fruit_logit(samples.positions[dense], geo.features[dense]).float())
-        at = dense[prob >= config.behind_fruit_threshold]
+        fruit = prob >= config.behind_fruit_threshold
+        at = dense[fruit]
         xyz, features = samples.positions[at], geo.features[at]
         emb = F.normalize(field.embedding(xyz, features).float(), dim=-1)
         rgb = field.rgb(features, samples.directions[at]).float().clamp(0, 1)
-    ray = samples.ray_index[at]
-    dist = ((xyz - rays.origins[ray]) * rays.directions[ray]).sum(1)
-    return ray, xyz, dist, emb, rgb, prob[prob >= config.behind_fruit_threshold]
+    return samples.ray_index[at], xyz, emb, rgb, prob[fruit]
 
 
 @torch.no_grad()
@@ -256,7 +256,7 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
             if config.behind_foliage == 'unsurfaced':
                 source = torch.nonzero(~fruit).squeeze(1)
             if len(source):
-                ray, xyz, dist, emb, rgb, p = _behind_foliage(
+                ray, xyz, emb, rgb, p = _behind_foliage(
                     field, grid, settings, RayBundle(rays.origins[source], rays.directions[source]), config)
                 parts['xyz'].append(xyz)
                 parts['view'].append(view[source][ray])
