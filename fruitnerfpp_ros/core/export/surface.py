@@ -26,12 +26,11 @@ import torch
 import torch.nn.functional as F
 
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
-from fruitnerfpp_ros.core.data.rays import rays_for_pixels
+from fruitnerfpp_ros.core.data.rays import RayBundle, rays_for_pixels
 from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.fields.fruit_field import FruitField
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
-from fruitnerfpp_ros.core.data.rays import RayBundle
 from fruitnerfpp_ros.core.rendering.marching import march_rays
 from fruitnerfpp_ros.core.rendering.occupancy import OccupancyGrid
 from fruitnerfpp_ros.core.rendering.renderer import RenderSettings, autocast_for, render_rays
@@ -265,7 +264,8 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
                 parts['prob'].append(p)
                 n_behind += len(ray)
         if (c + 1) % max(1, n_chunks // 20) == 0 or c + 1 == n_chunks:
-            progress(ProgressEvent(Phase.EXPORT, c + 1, n_chunks, f'{n_fruit} fruit surface points'))
+            progress(ProgressEvent(Phase.EXPORT, c + 1, n_chunks,
+                                   f'{n_fruit} fruit surface points, {n_behind} behind foliage'))
     # voxels no finer than a pixel on the fruit: finer ones would hold one view's points each
     footprint = float(torch.cat(parts['footprint']).median()) if n_fruit else 0.0
     voxel = max(config.voxel_fruit_fraction * fruit_diameter_m, config.voxel_pixels * footprint)
@@ -289,8 +289,7 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
                                     means['prob'][kept].float().cpu().numpy(), emb.cpu().numpy(), spacing_m=voxel)
     report = SurfaceExportReport(views=len(views), n_fruit_pixels=n_pixels, n_rays=len(hits), n_opaque=n_opaque,
                                  n_fruit=n_fruit, n_behind=n_behind, n_voxels=n_voxels, n_multi_view=n_multi,
-                                 n_kept=n_kept,
-                                 voxel_size_m=voxel, fruit_diameter_m=fruit_diameter_m,
+                                 n_kept=n_kept, voxel_size_m=voxel, fruit_diameter_m=fruit_diameter_m,
                                  min_opacity=config.min_opacity, fruit_threshold=config.surface_fruit_threshold,
                                  min_views=config.min_views, min_mask_agreement=config.min_mask_agreement,
                                  stopped=stopped, time_s=time.perf_counter() - started)
