@@ -46,8 +46,8 @@ class SphereNeRF(nn.Module):
         inside, index = gap.min(dim=1)
         return inside <= 0, index
 
-    def _in_fog(self, xyz: torch.Tensor, haze: tuple[np.ndarray, float, float] | None = None) -> torch.Tensor:
-        haze = self.fog if haze is None else haze
+    @staticmethod
+    def _in_haze(xyz: torch.Tensor, haze: tuple[np.ndarray, float, float] | None) -> torch.Tensor:
         if haze is None:
             return torch.zeros(len(xyz), dtype=torch.bool, device=xyz.device)
         centre, radius, _ = haze
@@ -56,10 +56,9 @@ class SphereNeRF(nn.Module):
     def geometry(self, xyz: torch.Tensor) -> GeometryOutput:
         inside, index = self._nearest(xyz)
         density = torch.where(inside, self.sphere_density[index], torch.tensor(0.0))
-        if self.fog is not None:
-            density = torch.where(self._in_fog(xyz) & ~inside, torch.tensor(float(self.fog[2])), density)
-        if self.veil is not None:
-            density = torch.where(self._in_fog(xyz, self.veil) & ~inside, torch.tensor(float(self.veil[2])), density)
+        for haze in (self.fog, self.veil):
+            if haze is not None:
+                density = torch.where(self._in_haze(xyz, haze) & ~inside, torch.tensor(float(haze[2])), density)
         return GeometryOutput(density, index[:, None].float())
 
     def rgb(self, features: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
@@ -74,7 +73,7 @@ class SphereNeRF(nn.Module):
 
     def fruit_logit(self, xyz: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
         inside, index = self._nearest(xyz)
-        fruit = (inside & self.is_fruit[index]) | (self._in_fog(xyz) & ~inside)
+        fruit = (inside & self.is_fruit[index]) | (self._in_haze(xyz, self.fog) & ~inside)
         return torch.where(fruit, torch.tensor(8.0), torch.tensor(-8.0))
 
     def embedding(self, xyz: torch.Tensor, features: torch.Tensor) -> torch.Tensor:

@@ -89,6 +89,8 @@ def test_a_fruit_behind_foliage_is_exported_on_the_fruit(scene: Path) -> None:
     assert np.linalg.norm(counted.centers() - centre, axis=1).min() < 0.09
     assert count_fruits(dataclasses.replace(surface_only, fruit_diameter_m=FRUIT_D),
                         ClusterConfig(n_jobs=1)).count == counted.count - 1
+    everywhere, report_all = _export(scene, field, behind_foliage='all')   # every fruit ray followed, not only
+    assert report_all.n_behind > report.n_behind and near(everywhere) >= near(cloud)  # the ones with no surface
 
 
 def test_a_floater_seen_by_one_view_is_not_a_fruit(scene: Path) -> None:
