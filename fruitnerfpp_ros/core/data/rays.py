@@ -6,7 +6,7 @@ from typing import NamedTuple
 
 import torch
 
-__all__ = ['RayBundle', 'PixelBatch', 'rays_for_pixels', 'intersect_aabb']
+__all__ = ['RayBundle', 'PixelBatch', 'rays_for_pixels', 'intersect_aabb', 'pixels_crossing_box']
 
 
 class PixelBatch(NamedTuple):
@@ -63,3 +63,20 @@ def intersect_aabb(rays: RayBundle, aabb: torch.Tensor, near: float = 0.0) -> tu
     t_near = torch.minimum(t0, t1).amax(-1).clamp_min(near)
     t_far = torch.maximum(t0, t1).amin(-1)
     return t_near, t_far
+
+
+def pixels_crossing_box(T_world_camera: torch.Tensor, intrinsics: torch.Tensor, height: int, width: int,
+                        aabb: torch.Tensor) -> torch.Tensor:
+    """[V, H, W] bool: the pixels whose rays (in front of the camera) pass through the box ``aabb`` [2, 3].
+
+    One view at a time (H x W rays each), so memory stays at one image's rays.
+    """
+    rows, cols = torch.meshgrid(torch.arange(height), torch.arange(width), indexing='ij')
+    rows, cols = rows.reshape(-1), cols.reshape(-1)
+    box = torch.as_tensor(aabb, dtype=T_world_camera.dtype)
+    masks = []
+    for view in range(len(T_world_camera)):
+        rays = rays_for_pixels(T_world_camera, intrinsics, torch.full_like(rows, view), rows, cols)
+        t_near, t_far = intersect_aabb(rays, box)
+        masks.append((t_far > t_near).reshape(height, width))
+    return torch.stack(masks) if masks else torch.zeros(0, height, width, dtype=torch.bool)

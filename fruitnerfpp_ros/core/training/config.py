@@ -55,6 +55,10 @@ class DataConfig:
     better on most scenes (docs/results/accuracy_suite.md)."""
     min_fruit_pixels: int = 4
     """Fruit masks with fewer pixels are ignored by the group sampler."""
+    rays_through_box: bool = True
+    """The geometry and semantic stages draw their uniform rays among the pixels whose rays pass through the scene
+    box (a ray that misses it meets only the far field and trains nothing in the box). On a hemisphere every pixel
+    does; on the suite's row drives 23-67 % do (docs/results/accuracy_suite.md)."""
 
 
 @dataclass(frozen=True)

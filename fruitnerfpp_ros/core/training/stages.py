@@ -13,10 +13,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, NamedTuple, Protocol
 
+import numpy as np
 import torch
 from torch import nn
 
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
+from fruitnerfpp_ros.core.data.rays import pixels_crossing_box
 from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler, mask_interior
 from fruitnerfpp_ros.core.progress import Phase
 from fruitnerfpp_ros.core.training.config import TrainConfig
@@ -95,7 +97,8 @@ class GeometryStage:
     """The fruit-drawn rays train the photometric loss and the transparency term (stage 1), or only the semantic
     head (stage 2)."""
 
-    def __init__(self, config: TrainConfig, dataset: SceneDataset) -> None:
+    def __init__(self, config: TrainConfig, dataset: SceneDataset, drawable: torch.Tensor | None = None) -> None:
+        """``drawable``: [V, H, W] bool, the pixels rays may be drawn from (None: the dataset's valid pixels)."""
         stage = getattr(config, self.name)  # this stage's section: iterations, batch_rays, fruit_fraction
         self.config = config
         self.iterations = stage.iterations
@@ -108,7 +111,7 @@ class GeometryStage:
             self.opaque_fruit = mask_interior(dataset.instance_masks, dataset.semantic_masks)
         self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
                                            fruit_masks=fruit, fruit_fraction=stage.fruit_fraction,
-                                           valid_masks=dataset.valid_masks)
+                                           valid_masks=dataset.valid_masks if drawable is None else drawable)
 
     @property
     def phase(self) -> Phase:
@@ -215,10 +218,23 @@ class InstanceStage:
                           {'contrastive_loss': contrastive.detach()}, out.num_samples / max(len(pixels.view), 1))
 
 
-def build_stages(config: TrainConfig, dataset: SceneDataset) -> tuple[TrainingStage, ...]:
+def build_stages(config: TrainConfig, dataset: SceneDataset,
+                 aabb: np.ndarray | None = None) -> tuple[TrainingStage, ...]:
     """The three stages in order, with their samplers.
+
+    ``aabb`` [2, 3]: the scene box; with ``data.rays_through_box`` the photometric stages draw rays only through
+    pixels whose rays cross it (their recorded poses; the alignment moves them by centimetres).
 
     Raises:
         DatasetError: no training view to draw rays from, or none with two fruits (before any step is trained).
     """
-    return (GeometryStage(config, dataset), SemanticStage(config, dataset), InstanceStage(config, dataset))
+    drawable = None
+    if aabb is not None and config.data.rays_through_box:
+        drawable = pixels_crossing_box(dataset.T_world_camera, dataset.intrinsics, dataset.height, dataset.width,
+                                       torch.as_tensor(np.asarray(aabb), dtype=torch.float32))
+        if dataset.valid_masks is not None:
+            drawable &= dataset.valid_masks
+        if bool(drawable.all()):
+            drawable = dataset.valid_masks  # the same draws as without the test
+    return (GeometryStage(config, dataset, drawable), SemanticStage(config, dataset, drawable),
+            InstanceStage(config, dataset))

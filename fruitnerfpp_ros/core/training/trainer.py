@@ -270,7 +270,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
         measured = dataset if alignment is None else dataclasses.replace(
             dataset, T_world_camera=_corrected(dataset, alignment.correction))
         aabb, scale = measure_scene(measured, config, dev)
-    stages = build_stages(config, dataset)
+    stages = build_stages(config, dataset, aabb)
     run.create()
     save_config(config, run.config_path)
     atomic_write_text(run.root / SCALE_JSON, json.dumps({**scale.to_json(), 'aabb': np.round(aabb, 4).tolist()},

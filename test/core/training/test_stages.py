@@ -5,12 +5,13 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 from fruitnerfpp_ros.core.config_io import replace_nested
 from fruitnerfpp_ros.core.data.dataset import load_dataset
-from fruitnerfpp_ros.core.data.rays import PixelBatch
+from fruitnerfpp_ros.core.data.rays import PixelBatch, pixels_crossing_box, rays_for_pixels
 from fruitnerfpp_ros.core.data.samplers import mask_interior
 from fruitnerfpp_ros.core.progress import ProgressEvent
 from fruitnerfpp_ros.core.training import RunDir, train
@@ -282,3 +283,34 @@ def test_fruit_transparency_on_the_interior_covers_only_interior_fruit_rays(part
     logged = float(geometry.losses(model, torch.Generator().manual_seed(12)).logged['fruit_transparency'])
     assert logged == pytest.approx(expected, rel=1e-3)
     assert logged != pytest.approx(float(((1.0 - opacity) ** 2).mean()), rel=1e-3)
+
+
+def test_photometric_stages_draw_their_rays_through_the_scene_box_only(parts: tuple) -> None:
+    dataset, model, _ = parts
+    aabb = model.grid.aabb.numpy()
+    centre, half = (aabb[0] + aabb[1]) / 2, (aabb[1] - aabb[0]) / 8
+    small = np.stack([centre - half, centre + half])  # a box most pixels' rays miss
+    crossing = pixels_crossing_box(dataset.T_world_camera, dataset.intrinsics, dataset.height, dataset.width,
+                                   torch.as_tensor(small, dtype=torch.float32))
+    assert 0.02 < float(crossing.float().mean()) < 0.8
+    # the mask against points marched along a few rays of each kind (1 mm steps to 20 m)
+    picks = [torch.tensor(v) for v in torch.nonzero(crossing)[::97].T.tolist()]
+    misses = [torch.tensor(v) for v in torch.nonzero(~crossing)[::997].T.tolist()]
+    for (v, r, c), expected in ((picks, True), (misses, False)):
+        rays = rays_for_pixels(dataset.T_world_camera, dataset.intrinsics, v, r, c)
+        t = torch.arange(0.0, 20.0, 1e-3)
+        points = rays.origins[:, None] + t[None, :, None] * rays.directions[:, None]
+        inside = ((points > torch.as_tensor(small[0])) & (points < torch.as_tensor(small[1]))).all(-1).any(-1)
+        assert bool((inside == expected).all())
+    box_config = replace_nested(REFINED, {'semantic': {'fruit_fraction': 0.0}, 'geometry': {'fruit_fraction': 0.0}})
+    for config, only_through in ((box_config, True),
+                                 (replace_nested(box_config, {'data': {'rays_through_box': False}}), False)):
+        for stage in build_stages(config, dataset, small)[:2]:
+            drawn = stage.sampler.sample(4000, torch.Generator().manual_seed(5))
+            through = crossing[drawn.view, drawn.row, drawn.col]
+            assert bool(through.all()) if only_through else float(through.float().mean()) < 0.9
+    # a box every pixel's ray crosses: the draws are the ones without the test
+    huge = np.stack([aabb[0] - 100.0, aabb[1] + 100.0])
+    for with_box, without in zip(build_stages(box_config, dataset, huge)[:2], build_stages(box_config, dataset)[:2]):
+        a, b = (s.sampler.sample(500, torch.Generator().manual_seed(2)) for s in (with_box, without))
+        assert torch.equal(a.view, b.view) and torch.equal(a.row, b.row) and torch.equal(a.col, b.col)
