@@ -21,7 +21,8 @@ class UniformPixelSampler:
 
     With ``fruit_masks`` and ``fruit_fraction > 0``, that fraction of every batch is drawn uniformly from the fruit
     pixels instead (fruit covers a few percent of an orchard image: without this a batch holds a handful of them).
-    The uniform part comes first in every batch (:meth:`num_uniform`).
+    The uniform part comes first in every batch (:meth:`num_uniform`); with ``background_masks``, its last
+    ``background_fraction`` comes from those pixels.
 
     Args:
         views: [V'] view indices to draw from.
@@ -29,10 +30,13 @@ class UniformPixelSampler:
         fruit_masks: [V, H, W] bool fruit pixels (already False where a pixel is invalid), or None.
         fruit_fraction: share of a batch drawn from fruit pixels.
         valid_masks: [V, H, W] bool, False on pixels without data (never drawn); None = all valid.
+        background_masks: [V, H, W] bool pixels (e.g. those whose rays miss the scene box) from which
+            ``background_fraction`` of the uniform rays are drawn instead of from ``valid_masks``; None = none.
     """
 
     def __init__(self, views: torch.Tensor, height: int, width: int, *, fruit_masks: torch.Tensor | None = None,
-                 fruit_fraction: float = 0.0, valid_masks: torch.Tensor | None = None) -> None:
+                 fruit_fraction: float = 0.0, valid_masks: torch.Tensor | None = None,
+                 background_masks: torch.Tensor | None = None, background_fraction: float = 0.0) -> None:
         if len(views) == 0:
             raise DatasetError('no training views to sample rays from')
         self._views = views.to(torch.int64)
@@ -49,6 +53,11 @@ class UniformPixelSampler:
             hits = torch.nonzero(flat)  # [M, 2]: (position in views, flat pixel)
             self._fruit_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
         self._fruit_fraction = fruit_fraction if len(self._fruit_pixels) else 0.0
+        self._background_pixels = torch.zeros(0, dtype=torch.int64)
+        if background_masks is not None and background_fraction > 0:
+            hits = torch.nonzero(background_masks[self._views].reshape(len(self._views), -1))
+            self._background_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
+        self._background_fraction = background_fraction if len(self._background_pixels) else 0.0
 
     def num_uniform(self, batch_size: int) -> int:
         """How many of a ``batch_size`` batch are drawn uniformly: they come first, the fruit pixels after."""
@@ -70,14 +79,20 @@ class UniformPixelSampler:
             need -= len(view)
         return torch.cat(views), torch.cat(pixels)
 
+    def _from(self, pool: torch.Tensor, count: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """``count`` (view, flat pixel) pairs drawn uniformly from ``pool`` (view * H * W + flat pixel)."""
+        chosen = pool[torch.randint(len(pool), (count,), generator=generator)]
+        return chosen // (self._height * self._width), chosen % (self._height * self._width)
+
     def sample(self, batch_size: int, generator: torch.Generator) -> PixelBatch:
         n_uniform = self.num_uniform(batch_size)
         n_fruit = batch_size - n_uniform
-        view, pixel = self._uniform(n_uniform, generator)
-        if n_fruit:
-            chosen = self._fruit_pixels[torch.randint(len(self._fruit_pixels), (n_fruit,), generator=generator)]
-            view = torch.cat([view, chosen // (self._height * self._width)])
-            pixel = torch.cat([pixel, chosen % (self._height * self._width)])
+        n_background = int(round(n_uniform * self._background_fraction))
+        view, pixel = self._uniform(n_uniform - n_background, generator)
+        for pool, count in ((self._background_pixels, n_background), (self._fruit_pixels, n_fruit)):
+            if count:
+                more_view, more_pixel = self._from(pool, count, generator)
+                view, pixel = torch.cat([view, more_view]), torch.cat([pixel, more_pixel])
         return PixelBatch(view, pixel // self._width, pixel % self._width)
 
 

@@ -57,8 +57,16 @@ class DataConfig:
     """Fruit masks with fewer pixels are ignored by the group sampler."""
     rays_through_box: bool = True
     """The geometry and semantic stages draw their uniform rays among the pixels whose rays pass through the scene
-    box (a ray that misses it meets only the far field and trains nothing in the box). On a hemisphere every pixel
-    does; on the suite's row drives 23-67 % do (docs/results/accuracy_suite.md)."""
+    box (a ray that misses it meets only the far field and trains nothing in the box), but for
+    ``outside_box_fraction``. On a hemisphere every pixel does; on the suite's row drives 23-67 % do
+    (docs/results/accuracy_suite.md)."""
+    outside_box_fraction: float = 0.1
+    """With ``rays_through_box``: this share of the uniform rays comes from the pixels whose rays miss the box, so
+    the far field still learns the backdrop (ground, sky) the held-out views show there."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.outside_box_fraction < 1.0:
+            raise ConfigError(f'data.outside_box_fraction must be in [0, 1), got {self.outside_box_fraction}')
 
 
 @dataclass(frozen=True)

@@ -97,8 +97,10 @@ class GeometryStage:
     """The fruit-drawn rays train the photometric loss and the transparency term (stage 1), or only the semantic
     head (stage 2)."""
 
-    def __init__(self, config: TrainConfig, dataset: SceneDataset, drawable: torch.Tensor | None = None) -> None:
-        """``drawable``: [V, H, W] bool, the pixels rays may be drawn from (None: the dataset's valid pixels)."""
+    def __init__(self, config: TrainConfig, dataset: SceneDataset, drawable: torch.Tensor | None = None,
+                 background: torch.Tensor | None = None) -> None:
+        """``drawable``: [V, H, W] bool, the pixels rays are drawn from (None: the dataset's valid pixels);
+        ``background``: the pixels ``data.outside_box_fraction`` of the uniform rays come from (None: none)."""
         stage = getattr(config, self.name)  # this stage's section: iterations, batch_rays, fruit_fraction
         self.config = config
         self.iterations = stage.iterations
@@ -111,7 +113,9 @@ class GeometryStage:
             self.opaque_fruit = mask_interior(dataset.instance_masks, dataset.semantic_masks)
         self.sampler = UniformPixelSampler(dataset.train_indices, dataset.height, dataset.width,
                                            fruit_masks=fruit, fruit_fraction=stage.fruit_fraction,
-                                           valid_masks=dataset.valid_masks if drawable is None else drawable)
+                                           valid_masks=dataset.valid_masks if drawable is None else drawable,
+                                           background_masks=background,
+                                           background_fraction=config.data.outside_box_fraction)
 
     @property
     def phase(self) -> Phase:
@@ -222,19 +226,19 @@ def build_stages(config: TrainConfig, dataset: SceneDataset,
                  aabb: np.ndarray | None = None) -> tuple[TrainingStage, ...]:
     """The three stages in order, with their samplers.
 
-    ``aabb`` [2, 3]: the scene box; with ``data.rays_through_box`` the photometric stages draw rays only through
-    pixels whose rays cross it (their recorded poses; the alignment moves them by centimetres).
+    ``aabb`` [2, 3]: the scene box; with ``data.rays_through_box`` the photometric stages draw their rays through
+    pixels whose rays cross it (recorded poses; the alignment moves them by centimetres), all but
+    ``data.outside_box_fraction`` of the uniform ones, which come from the other pixels (the far field's backdrop).
 
     Raises:
         DatasetError: no training view to draw rays from, or none with two fruits (before any step is trained).
     """
-    drawable = None
+    drawable = background = None
     if aabb is not None and config.data.rays_through_box:
-        drawable = pixels_crossing_box(dataset.T_world_camera, dataset.intrinsics, dataset.height, dataset.width,
+        crossing = pixels_crossing_box(dataset.T_world_camera, dataset.intrinsics, dataset.height, dataset.width,
                                        torch.as_tensor(np.asarray(aabb), dtype=torch.float32))
-        if dataset.valid_masks is not None:
-            drawable &= dataset.valid_masks
-        if bool(drawable.all()):
-            drawable = dataset.valid_masks  # the same draws as without the test
-    return (GeometryStage(config, dataset, drawable), SemanticStage(config, dataset, drawable),
-            InstanceStage(config, dataset))
+        valid = torch.ones_like(crossing) if dataset.valid_masks is None else dataset.valid_masks
+        if not bool(crossing[valid].all()):  # else the same draws as without the test
+            drawable, background = crossing & valid, ~crossing & valid
+    return (GeometryStage(config, dataset, drawable, background),
+            SemanticStage(config, dataset, drawable, background), InstanceStage(config, dataset))

@@ -45,6 +45,9 @@ def test_cli_config_overrides_and_errors(tmp_path: Path, capsys: pytest.CaptureF
     (tmp_path / 'open.yaml').write_text('geometry:\n  coarse_to_fine_fraction: 1.5\n')
     with pytest.raises(ConfigError, match='coarse_to_fine_fraction'):
         resolve_train_config('tiny', tmp_path / 'open.yaml')
+    (tmp_path / 'all_outside.yaml').write_text('data:\n  outside_box_fraction: 1.0\n')
+    with pytest.raises(ConfigError, match='outside_box_fraction'):
+        resolve_train_config('tiny', tmp_path / 'all_outside.yaml')
     code = main(['train', str(tmp_path / 'missing'), '--out', str(tmp_path / 'run'), '--device', 'cpu'])
     err = capsys.readouterr().err
     assert code == 2 and 'transforms.json' in err and 'Traceback' not in err
