@@ -31,7 +31,8 @@ class UniformPixelSampler:
         fruit_fraction: share of a batch drawn from fruit pixels.
         valid_masks: [V, H, W] bool, False on pixels without data (never drawn); None = all valid.
         background_masks: [V, H, W] bool pixels (e.g. those whose rays miss the scene box) from which
-            ``background_fraction`` of the uniform rays are drawn instead of from ``valid_masks``; None = none.
+            ``background_fraction`` of the uniform rays are drawn instead of from ``valid_masks`` (at most their
+            share of the pixels); None = none.
     """
 
     def __init__(self, views: torch.Tensor, height: int, width: int, *, fruit_masks: torch.Tensor | None = None,
@@ -57,7 +58,10 @@ class UniformPixelSampler:
         if background_masks is not None and background_fraction > 0:
             hits = torch.nonzero(background_masks[self._views].reshape(len(self._views), -1))
             self._background_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
-        self._background_fraction = background_fraction if len(self._background_pixels) else 0.0
+        # never more than the background's own share of the pixels (a box that a few pixels miss draws none)
+        uniform = len(self._views) * height * width if self._valid is None else int(self._valid[self._views].sum())
+        natural = len(self._background_pixels) / max(len(self._background_pixels) + uniform, 1)
+        self._background_fraction = min(background_fraction, natural)
 
     def num_uniform(self, batch_size: int) -> int:
         """How many of a ``batch_size`` batch are drawn uniformly: they come first, the fruit pixels after."""

@@ -61,8 +61,9 @@ class DataConfig:
     ``outside_box_fraction``. On a hemisphere every pixel does; on the suite's row drives 23-67 % do
     (docs/results/accuracy_suite.md)."""
     outside_box_fraction: float = 0.1
-    """With ``rays_through_box``: this share of the uniform rays comes from the pixels whose rays miss the box, so
-    the far field still learns the backdrop (ground, sky) the held-out views show there."""
+    """With ``rays_through_box``: this share of the uniform rays (at most those pixels' own share) comes from the
+    pixels whose rays miss the box, so the far field still learns the backdrop (ground, sky) the held-out views
+    show there."""
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.outside_box_fraction < 1.0:

@@ -78,3 +78,18 @@ def test_mask_interior_drops_edges_and_keeps_fruits_too_small_for_an_interior() 
     batch = sampler.sample(400, torch.Generator().manual_seed(1))
     fruit_part = slice(sampler.num_uniform(400), None)
     assert bool(kept[batch.view[fruit_part], batch.row[fruit_part], batch.col[fruit_part]].all())
+
+
+def test_uniform_sampler_draws_its_background_share_but_never_more_than_the_background_holds() -> None:
+    views, height, width = torch.arange(4), 20, 50
+    wide = torch.zeros(4, height, width, dtype=torch.bool)
+    wide[:, :, :30] = True                       # 60 % of the pixels: the share asked for is drawn
+    narrow = torch.zeros_like(wide)
+    narrow[:, 0, :8] = True                      # 8 of 1000 pixels per view: their own 0.8 %
+    for background, share in ((wide, 0.1), (narrow, 0.008)):
+        sampler = UniformPixelSampler(views, height, width, valid_masks=~background, background_masks=background,
+                                      background_fraction=0.1)
+        drawn = sampler.sample(5000, torch.Generator().manual_seed(1))
+        hit = background[drawn.view, drawn.row, drawn.col]
+        n_background = int(round(5000 * share))
+        assert int(hit.sum()) == n_background and bool(hit[5000 - n_background:].all())
