@@ -55,13 +55,13 @@ class UniformPixelSampler:
             self._fruit_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
         self._fruit_fraction = fruit_fraction if len(self._fruit_pixels) else 0.0
         self._background_pixels = torch.zeros(0, dtype=torch.int64)
+        self._background_fraction = 0.0
         if background_masks is not None and background_fraction > 0:
             hits = torch.nonzero(background_masks[self._views].reshape(len(self._views), -1))
             self._background_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
-        # never more than the background's own share of the pixels (a box that a few pixels miss draws none)
-        uniform = len(self._views) * height * width if self._valid is None else int(self._valid[self._views].sum())
-        natural = len(self._background_pixels) / max(len(self._background_pixels) + uniform, 1)
-        self._background_fraction = min(background_fraction, natural)
+            # never more than the background's own share of the pixels (a box that a few pixels miss draws none)
+            uniform = len(self._views) * height * width if self._valid is None else int(self._valid[self._views].sum())
+            self._background_fraction = min(background_fraction, len(hits) / max(len(hits) + uniform, 1))
 
     def num_uniform(self, batch_size: int) -> int:
         """How many of a ``batch_size`` batch are drawn uniformly: they come first, the fruit pixels after."""
