@@ -16,6 +16,9 @@ from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['HashGridConfig', 'HashGridEncoding']
 
+#: points per encoding pass on the CPU (see :meth:`HashGridEncoding.forward`).
+CPU_CHUNK_POINTS = 8192
+
 #: instant-NGP hash primes as int32 (multiplication wraps around like the original uint32 arithmetic).
 _PRIMES = (1, 2654435761 - 2 ** 32, 805459861)
 
@@ -151,7 +154,17 @@ class HashGridEncoding(nn.Module):
         return index, weights
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        """Features [N, L * F] (level-major) of points ``x`` [N, 3] in [0, 1]^3 (values outside are clamped)."""
+        """Features [N, L * F] (level-major) of points ``x`` [N, 3] in [0, 1]^3 (values outside are clamped).
+
+        On the CPU the points are encoded ``CPU_CHUNK_POINTS`` at a time: the [8, L, N] index and weight tensors of
+        a chunk stay in cache (measured on 50k points, one thread: 36 -> 16 ms without autograd, 56 -> 43 ms with
+        its backward). The values are the same; only the order of the table gradient's sums changes.
+        """
+        if x.device.type == 'cpu' and x.shape[0] > CPU_CHUNK_POINTS:
+            return torch.cat([self._encode(part) for part in x.split(CPU_CHUNK_POINTS)])
+        return self._encode(x)
+
+    def _encode(self, x: torch.Tensor) -> torch.Tensor:
         n = x.shape[0]
         index, weights = self.vertex_index(x)
         flat = index.reshape(-1)

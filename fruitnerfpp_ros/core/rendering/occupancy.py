@@ -1,7 +1,8 @@
 """Occupancy grid for empty-space skipping (nerfacc / instant-NGP style).
 
 A ``res^3`` grid over the scene box keeps, per cell, an exponential moving maximum of the optical thickness
-``density * step`` seen at random points in the cell. Cells above ``min(threshold, mean)`` are occupied; ray
+``density * step`` seen at random points in the cell (every occupied cell and a random share of the others per
+update). Cells above ``min(threshold, mean)`` are occupied; ray
 marching evaluates the field only at samples inside occupied cells.
 """
 
@@ -48,8 +49,13 @@ class OccupancyGrid(nn.Module):
 
     @torch.no_grad()
     def update(self, density_fn: Callable[[torch.Tensor], torch.Tensor], step_size: float,
-               generator: torch.Generator, chunk: int = 1 << 18) -> None:
-        """Evaluate density at one random point per cell and refresh the occupancy.
+               generator: torch.Generator, chunk: int = 1 << 18, probe_fraction: float = 1.0) -> None:
+        """Evaluate density at one random point per probed cell and refresh the occupancy.
+
+        The probed cells are every occupied cell and a random ``probe_fraction`` of all cells (instant-NGP's
+        update; 1 = every cell). A cell left out only decays: an occupied cell is always probed, so only empty
+        cells wait for their turn (on average ``1 / probe_fraction`` updates). A fresh grid is all occupied, so its
+        first update probes every cell.
 
         The random points are drawn on the grid's device, chunk by chunk, from a generator seeded by one draw
         of ``generator``: no res^3 x 3 host buffer and no host-to-device copy per update, and the stream still
@@ -59,17 +65,31 @@ class OccupancyGrid(nn.Module):
             density_fn: world points [N, 3] -> density [N] (1/m).
             step_size: ray-marching step in metres (turns density into optical thickness).
             generator: random source (CPU generator, part of the checkpointed training state).
+            chunk: cells evaluated per call of ``density_fn``.
+            probe_fraction: share of all cells probed at random besides the occupied ones, in (0, 1].
         """
         device, res = self.aabb.device, self.resolution
         local = torch.Generator(device=device)
         local.manual_seed(int(torch.randint(0, 2 ** 62, (1,), generator=generator)))
-        fresh = torch.empty(res ** 3, device=device)
-        for start in range(0, res ** 3, chunk):
-            index = torch.arange(start, min(start + chunk, res ** 3), device=device)
+        if probe_fraction >= 1.0:
+            probed = None
+        else:
+            drawn = torch.rand(res ** 3, generator=local, device=device) < probe_fraction
+            probed = torch.nonzero(drawn | self.occupied).squeeze(1)
+        count = res ** 3 if probed is None else len(probed)
+        fresh = torch.empty(count, device=device)
+        for start in range(0, count, chunk):
+            index = torch.arange(start, min(start + chunk, count), device=device)
+            index = index if probed is None else probed[index]
             cells = torch.stack([index // res ** 2, (index // res) % res, index % res], -1).to(torch.float32)
             unit = (cells + torch.rand(cells.shape, generator=local, device=device)) / res
             fresh[start:start + len(index)] = density_fn(self.aabb[0] + unit * (self.aabb[1] - self.aabb[0])).float()
-        self.values.copy_(torch.maximum(self.values * self.decay, fresh * step_size))
+        decayed = self.values * self.decay
+        if probed is None:
+            self.values.copy_(torch.maximum(decayed, fresh * step_size))
+        else:
+            decayed[probed] = torch.maximum(decayed[probed], fresh * step_size)
+            self.values.copy_(decayed)
         self.occupied.copy_(self.values > min(self.threshold, float(self.values.mean())))
 
     @property

@@ -91,6 +91,9 @@ class RenderConfig:
     """Decay of the occupancy values per update."""
     occupancy_update_every: int = 16
     """Training steps between occupancy updates (stages 1 and 2)."""
+    occupancy_probe_fraction: float = 1.0
+    """Share of all occupancy cells probed at random per update besides the occupied ones (instant-NGP's update);
+    1 probes every cell."""
     stop_transmittance: float = 1e-3
     """Training rays drop their samples behind the point where the transmittance (from a first, gradient-free
     density pass) falls below this; 0 disables early termination."""
@@ -100,6 +103,10 @@ class RenderConfig:
     """bfloat16 autocast for the field on CUDA (ignored on the CPU)."""
     compile: bool = True
     """torch.compile the field's MLP heads on CUDA (ignored on the CPU or when unavailable)."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.occupancy_probe_fraction <= 1.0:
+            raise ConfigError(f'render.occupancy_probe_fraction must be in (0, 1], got {self.occupancy_probe_fraction}')
 
     def step_m(self, fruit_diameter_m: float) -> float:
         """Ray-marching step in metres."""

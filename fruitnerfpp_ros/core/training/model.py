@@ -220,4 +220,5 @@ class FruitNeRFModel(nn.Module):
 
     def update_occupancy(self, generator: torch.Generator) -> None:
         """Refresh the occupancy grid from the current density."""
-        self.grid.update(lambda xyz: self.geometry_fn(xyz).density, self.settings.step, generator)
+        self.grid.update(lambda xyz: self.geometry_fn(xyz).density, self.settings.step, generator,
+                         probe_fraction=self.config.render.occupancy_probe_fraction)

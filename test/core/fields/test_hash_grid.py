@@ -90,3 +90,18 @@ def test_levels_open_coarse_to_fine_and_closed_levels_neither_contribute_nor_lea
     grid.open_levels(1.0)
     assert torch.equal(grid(x).detach(), full)
     assert 'level_weights' not in grid.state_dict()           # a loaded grid has every level open
+
+
+def test_cpu_chunks_give_the_features_and_table_gradient_of_one_pass() -> None:
+    from fruitnerfpp_ros.core.fields.hash_grid import CPU_CHUNK_POINTS
+    enc = HashGridEncoding(HashGridConfig(num_levels=4, features_per_level=2, log2_table_size=11), 4, 64,
+                           init_scale=1.0, generator=torch.Generator().manual_seed(0))
+    x = torch.rand(2 * CPU_CHUNK_POINTS + 123, 3, generator=torch.Generator().manual_seed(1))
+    chunked = enc(x)                                    # three chunks
+    whole = enc._encode(x)                              # one pass
+    assert torch.equal(chunked, whole)
+    (chunked * torch.arange(chunked.shape[1])).sum().backward()
+    grad_chunked = enc.table.grad.clone()
+    enc.table.grad = None
+    (whole * torch.arange(whole.shape[1])).sum().backward()
+    assert bool(grad_chunked.abs().sum() > 0) and torch.allclose(grad_chunked, enc.table.grad, rtol=1e-5, atol=1e-3)

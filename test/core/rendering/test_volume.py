@@ -46,6 +46,45 @@ def test_occupancy_grid_skips_empty_space() -> None:
     assert bool(((z > 0.3) & (z < 0.7)).all()) and len(samples.positions) < 16 * 40
 
 
+def test_occupancy_update_probes_every_occupied_cell_and_a_share_of_the_others() -> None:
+    grid = OccupancyGrid(AABB, resolution=16, threshold=0.01, decay=0.5)
+    probed: list[torch.Tensor] = []
+
+    def ball(xyz: torch.Tensor) -> torch.Tensor:  # dense within 0.25 of the centre
+        probed.append(grid.cell_index(xyz)[0])
+        return torch.where((xyz - 0.5).norm(dim=-1) < 0.25, 100.0, 0.0)
+
+    generator = torch.Generator().manual_seed(0)
+    grid.update(ball, 0.01, generator, probe_fraction=0.25)  # a fresh grid is all occupied: every cell probed
+    assert len(torch.cat(probed)) == 16 ** 3
+    occupied = grid.occupied.clone()
+    assert 0.03 < float(occupied.float().mean()) < 0.1
+    probed.clear()
+    grid.update(ball, 0.01, generator, probe_fraction=0.25, chunk=1000)
+    cells = torch.cat(probed)
+    assert len(torch.unique(cells)) == len(cells)  # one point per probed cell
+    hit = torch.zeros(16 ** 3, dtype=torch.bool)
+    hit[cells] = True
+    assert bool(hit[occupied].all())  # every occupied cell, and about a quarter of the rest
+    share = float(hit[~occupied].float().mean())
+    assert 0.2 < share < 0.3
+    assert bool(grid.occupied[occupied].all())  # an occupied cell stays occupied (its value only decays)
+    # a cell left out only decays; the empty cells it left out still hold what they held, halved
+    before = grid.values.clone()
+    probed.clear()
+    grid.update(lambda xyz: torch.zeros(len(xyz)), 0.01, generator, probe_fraction=0.25)
+    assert torch.allclose(grid.values, before * 0.5)
+
+
+def test_occupancy_update_of_every_cell_keeps_the_moving_maximum() -> None:
+    grid = OccupancyGrid(AABB, resolution=8, threshold=0.01, decay=0.5)
+    generator = torch.Generator().manual_seed(0)
+    grid.update(lambda xyz: torch.full((len(xyz),), 4.0), 0.01, generator)
+    assert torch.allclose(grid.values, torch.full((8 ** 3,), 0.04)) and bool(grid.occupied.all())
+    grid.update(lambda xyz: torch.full((len(xyz),), 1.0), 0.01, generator, probe_fraction=1.0)
+    assert torch.allclose(grid.values, torch.full((8 ** 3,), 0.02))  # max(0.04 x 0.5, 0.01)
+
+
 def test_pixel_rays_follow_opengl_convention() -> None:
     T = torch.eye(4)[None]
     K = torch.tensor([[10.0, 10.0, 4.0, 4.0]])

@@ -48,6 +48,9 @@ def test_cli_config_overrides_and_errors(tmp_path: Path, capsys: pytest.CaptureF
     (tmp_path / 'all_outside.yaml').write_text('data:\n  outside_box_fraction: 1.0\n')
     with pytest.raises(ConfigError, match='outside_box_fraction'):
         resolve_train_config('tiny', tmp_path / 'all_outside.yaml')
+    (tmp_path / 'no_probe.yaml').write_text('render:\n  occupancy_probe_fraction: 0.0\n')
+    with pytest.raises(ConfigError, match='occupancy_probe_fraction'):
+        resolve_train_config('tiny', tmp_path / 'no_probe.yaml')
     code = main(['train', str(tmp_path / 'missing'), '--out', str(tmp_path / 'run'), '--device', 'cpu'])
     err = capsys.readouterr().err
     assert code == 2 and 'transforms.json' in err and 'Traceback' not in err
