@@ -56,8 +56,8 @@ def _cpu() -> TrainConfig:
     # second noisy row (peach, seed 201) 0.286 -> 0.761; on the 12 noise-free scenes the recorded poses already agree
     # with the images (0.07-0.14 px) and are kept (docs/results/pose_refinement.md). tiny skips it (CI time).
     # Each occupancy update probes the occupied cells and a random quarter of the others (instant-NGP's update):
-    # with the CPU's chunked hash-grid passes, apple_hemi_200 784 -> 591 s, rows 12-22 % faster, F1 within one
-    # run's spread (docs/results/accuracy_suite.md, "Faster steps").
+    # with the CPU's chunked hash-grid passes the `cpu` suite's scenes take 260-591 s (281-784 s before), its mean
+    # F1 0.873 -> 0.880, within one run's spread (docs/results/accuracy_suite.md, "Faster training steps").
     tiny = _tiny()
     return dataclasses.replace(
         tiny, render=dataclasses.replace(tiny.render, occupancy_probe_fraction=0.25),
