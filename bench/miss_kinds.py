@@ -2,8 +2,8 @@
 """Where a suite run's missed fruits were lost: in the export (no cloud points near the fruit) or in the clustering.
 
 For each scene directory of a suite run (``fruitnerfpp bench accuracy --out DIR``; bag replays score their
-keyframes) the fruits some training view sees and that the run's Hungarian matching left unmatched are sorted
-into:
+keyframes) the fruits some training view sees and that the run's Hungarian matching (``run/eval.json``, or the
+suite's scoring where a bag replay wrote none) left unmatched are sorted into:
 
 - ``no points``: fewer than 10 % of a fruit's points (``points_per_fruit`` of the run's count) lie within 0.7 ground
   truth diameters of its centre: the export kept no surface there, and no clustering can count it;
@@ -68,8 +68,11 @@ def miss_kinds(scene_dir: Path, types: bool = False) -> dict[str, int | float]:
     gt = scored_ground_truth(scene_dir / 'data' / 'gt_fruits.json', dataset, run, 8)
     counts = json.loads((run / 'counts.json').read_text())
     centers = np.array([f['center'] for f in counts['fruits']]).reshape(-1, 3)
+    evaluated = run / 'eval.json'  # the run's own scoring; a bag replay writes none: score it as the suite does
+    pairs = (json.loads(evaluated.read_text())['hungarian']['pairs'] if evaluated.is_file()
+             else evaluate_counts(centers, gt).hungarian.pairs)
     matched = np.zeros(len(gt.ids), bool)
-    for _, g in evaluate_counts(centers, gt).hungarian.pairs:
+    for _, g in pairs:
         matched[g] = True
     cloud, _ = read_cloud(scene_dir / 'run' / 'cloud.npz')
     near = np.asarray(cKDTree(cloud.xyz).query_ball_point(gt.centers, 0.7 * gt.diameters, return_length=True))

@@ -2,8 +2,8 @@
 
 A ``res^3`` grid over the scene box keeps, per cell, an exponential moving maximum of the optical thickness
 ``density * step`` seen at random points in the cell (every occupied cell and a random share of the others per
-update). Cells above ``min(threshold, mean)`` are occupied; ray
-marching evaluates the field only at samples inside occupied cells.
+update). Cells above ``min(threshold, mean)`` are occupied; ray marching evaluates the field only at samples inside
+occupied cells.
 """
 
 from __future__ import annotations
