@@ -48,20 +48,22 @@ class UniformPixelSampler:
             raise DatasetError('no valid pixel in the training views (every pixel is masked out)')
         self._fruit_pixels = torch.zeros(0, dtype=torch.int64)
         if fruit_masks is not None and fruit_fraction > 0:
-            flat = fruit_masks[self._views].reshape(len(self._views), -1)
-            if self._valid is not None:
-                flat = flat & self._valid[self._views]
-            hits = torch.nonzero(flat)  # [M, 2]: (position in views, flat pixel)
-            self._fruit_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
+            flat = fruit_masks.reshape(len(fruit_masks), -1)
+            self._fruit_pixels = self._pool(flat if self._valid is None else flat & self._valid)
         self._fruit_fraction = fruit_fraction if len(self._fruit_pixels) else 0.0
         self._background_pixels = torch.zeros(0, dtype=torch.int64)
         self._background_fraction = 0.0
         if background_masks is not None and background_fraction > 0:
-            hits = torch.nonzero(background_masks[self._views].reshape(len(self._views), -1))
-            self._background_pixels = self._views[hits[:, 0]] * (height * width) + hits[:, 1]
+            self._background_pixels = self._pool(background_masks.reshape(len(background_masks), -1))
             # never more than the background's own share of the pixels (a box that a few pixels miss draws none)
+            drawn = len(self._background_pixels)
             uniform = len(self._views) * height * width if self._valid is None else int(self._valid[self._views].sum())
-            self._background_fraction = min(background_fraction, len(hits) / max(len(hits) + uniform, 1))
+            self._background_fraction = min(background_fraction, drawn / max(drawn + uniform, 1))
+
+    def _pool(self, flat_masks: torch.Tensor) -> torch.Tensor:
+        """The True pixels of ``flat_masks`` [V, H * W] in the sampled views, as view * H * W + flat pixel."""
+        hits = torch.nonzero(flat_masks[self._views])  # [M, 2]: (position in views, flat pixel)
+        return self._views[hits[:, 0]] * (self._height * self._width) + hits[:, 1]
 
     def num_uniform(self, batch_size: int) -> int:
         """How many of a ``batch_size`` batch are drawn uniformly: they come first, the fruit pixels after."""

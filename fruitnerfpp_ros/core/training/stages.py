@@ -236,7 +236,7 @@ def build_stages(config: TrainConfig, dataset: SceneDataset,
     drawable = background = None
     if aabb is not None and config.data.rays_through_box:
         crossing = pixels_crossing_box(dataset.T_world_camera, dataset.intrinsics, dataset.height, dataset.width,
-                                       torch.as_tensor(np.asarray(aabb), dtype=torch.float32))
+                                       torch.as_tensor(aabb, dtype=torch.float32))
         valid = torch.ones_like(crossing) if dataset.valid_masks is None else dataset.valid_masks
         if not bool(crossing[valid].all()):  # else the same draws as without the test
             drawable, background = crossing & valid, ~crossing & valid

@@ -42,15 +42,11 @@ def test_cli_config_overrides_and_errors(tmp_path: Path, capsys: pytest.CaptureF
     (tmp_path / 'bad.yaml').write_text('geometry:\n  iteration: 7\n')
     with pytest.raises(ConfigError, match='bad.yaml.*geometry.iteration'):
         resolve_train_config('tiny', tmp_path / 'bad.yaml')
-    (tmp_path / 'open.yaml').write_text('geometry:\n  coarse_to_fine_fraction: 1.5\n')
-    with pytest.raises(ConfigError, match='coarse_to_fine_fraction'):
-        resolve_train_config('tiny', tmp_path / 'open.yaml')
-    (tmp_path / 'all_outside.yaml').write_text('data:\n  outside_box_fraction: 1.0\n')
-    with pytest.raises(ConfigError, match='outside_box_fraction'):
-        resolve_train_config('tiny', tmp_path / 'all_outside.yaml')
-    (tmp_path / 'no_probe.yaml').write_text('render:\n  occupancy_probe_fraction: 0.0\n')
-    with pytest.raises(ConfigError, match='occupancy_probe_fraction'):
-        resolve_train_config('tiny', tmp_path / 'no_probe.yaml')
+    for section, key, value in (('geometry', 'coarse_to_fine_fraction', 1.5), ('data', 'outside_box_fraction', 1.0),
+                                ('render', 'occupancy_probe_fraction', 0.0)):  # values out of their range
+        (tmp_path / f'{key}.yaml').write_text(f'{section}:\n  {key}: {value}\n')
+        with pytest.raises(ConfigError, match=key):
+            resolve_train_config('tiny', tmp_path / f'{key}.yaml')
     code = main(['train', str(tmp_path / 'missing'), '--out', str(tmp_path / 'run'), '--device', 'cpu'])
     err = capsys.readouterr().err
     assert code == 2 and 'transforms.json' in err and 'Traceback' not in err
