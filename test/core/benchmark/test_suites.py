@@ -28,7 +28,18 @@ def test_suites_have_unique_names_and_their_presets() -> None:
         names = [s.name for s in suite.scenes]
         assert len(names) == len(set(names))
     presets = {name: suite.preset for name, suite in SUITES.items()}
-    assert presets == {'quick': 'cpu', 'cpu': 'cpu', 'gpu': 'default', 'smoke': 'tiny'}
+    assert presets == {'quick': 'cpu', 'cpu': 'cpu', 'gpu': 'default', 'holdout': 'cpu', 'smoke': 'tiny'}
+
+
+def test_holdout_suite_shares_no_seed_and_adds_axes() -> None:
+    held = [s.synth_config() for s in SUITES['holdout'].scenes]
+    tuned = [s.synth_config() for name in ('quick', 'cpu') for s in SUITES[name].scenes]
+    assert not {c.seed for c in held} & {c.seed for c in tuned}
+    assert {(c.fruit, c.trajectory) for c in held} - {(c.fruit, c.trajectory) for c in tuned}
+    assert any(c.leaf_scale > 1 for c in held) and any(c.leaf_scale < 1 for c in held)
+    assert any(c.cluster_scale > 1 for c in held) and any(c.fov_deg != 50 for c in held)
+    assert any(c.trajectory == 'row' and c.camera_pitch_deg < 0 for c in held)
+    assert any(s.via_bag and s.synth_config().resolution == (480, 360) for s in SUITES['holdout'].scenes)
 
 
 def test_quick_suite_is_the_four_scenes() -> None:
@@ -79,7 +90,7 @@ def test_suite_scenes_selects_by_name_in_suite_order() -> None:
     chosen = suite_scenes('quick', 'mango_hemi_40, apple_hemi_20')
     assert [s.name for s in chosen] == ['apple_hemi_20', 'mango_hemi_40']
     assert suite_scenes('quick') == SUITES['quick'].scenes
-    with pytest.raises(ConfigError, match="unknown suite 'fast'; expected one of quick, cpu, gpu, smoke"):
+    with pytest.raises(ConfigError, match="unknown suite 'fast'; expected one of quick, cpu, gpu, holdout, smoke"):
         suite_scenes('fast')
     with pytest.raises(ConfigError, match='unknown scene.* nope in suite quick; its scenes: apple_hemi_20'):
         suite_scenes('quick', 'apple_hemi_20,nope')
