@@ -21,6 +21,11 @@ def _search_box(dataset) -> np.ndarray:  # noqa: ANN001
                              dataset.height, min_view_fraction=0.1)
 
 
+def _share_inside(centres: np.ndarray, region: np.ndarray) -> float:
+    """Share of the true fruit centres [N, 3] inside the box ``region`` [2, 3]."""
+    return float(np.all((centres >= region[0]) & (centres <= region[1]), axis=1).mean())
+
+
 def test_the_synthetic_test_tree_measures_its_apples(tiny_apple_dataset: Path) -> None:
     dataset = load_dataset(tiny_apple_dataset, eval_every=8)
     scale = estimate_scene_scale(dataset, _search_box(dataset))
@@ -92,13 +97,10 @@ def test_fruit_hidden_in_foliage_stays_inside_the_region(tmp_path: Path) -> None
                      tmp_path / 'mango')
     dataset = load_dataset(tmp_path / 'mango', eval_every=8)
     centres = np.array([f['center'] for f in json.loads((tmp_path / 'mango' / 'gt_fruits.json').read_text())['fruits']])
-
-    def inside(region: np.ndarray) -> float:
-        return float(np.all((centres >= region[0]) & (centres <= region[1]), axis=1).mean())
-
     strict = estimate_scene_scale(dataset, _search_box(dataset), ScaleConfig(region_fraction=None))
     held = estimate_scene_scale(dataset, _search_box(dataset))
-    assert inside(held.fruit_region) >= 0.95 and inside(strict.fruit_region) < inside(held.fruit_region)
+    assert _share_inside(centres, held.fruit_region) >= 0.95
+    assert _share_inside(centres, strict.fruit_region) < _share_inside(centres, held.fruit_region)
     assert np.all(held.fruit_region[1] - held.fruit_region[0] < centres.max(0) - centres.min(0) + 0.6)
     assert held.fruit_diameter_m == pytest.approx(strict.fruit_diameter_m, rel=0.1)
 
@@ -115,14 +117,10 @@ def test_a_refining_vote_that_loses_the_fruit_is_not_kept(tmp_path: Path) -> Non
     dataset = load_dataset(tmp_path / 'row', eval_every=8)
     fruits = json.loads((tmp_path / 'row' / 'gt_fruits.json').read_text())['fruits']
     centres = np.array([f['center'] for f in fruits])
-
-    def inside(region: np.ndarray) -> float:
-        return float(np.all((centres >= region[0]) & (centres <= region[1]), axis=1).mean())
-
     every_vote = estimate_scene_scale(dataset, _search_box(dataset), ScaleConfig(refine_min_share=0.0))
     scale = estimate_scene_scale(dataset, _search_box(dataset))
-    assert inside(every_vote.fruit_region) < 0.5  # the defect this guards against
-    assert inside(scale.fruit_region) >= 0.95
+    assert _share_inside(centres, every_vote.fruit_region) < 0.5  # the defect this guards against
+    assert _share_inside(centres, scale.fruit_region) >= 0.95
     assert np.all(scale.fruit_region[1] - scale.fruit_region[0] < centres.max(0) - centres.min(0) + 0.6)
     truth = float(np.median([f['diameter'] for f in fruits]))
     assert abs(scale.fruit_diameter_m - truth) < 0.2 * truth
