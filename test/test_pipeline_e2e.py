@@ -16,6 +16,8 @@ import numpy as np
 import pytest
 
 from fruitnerfpp_ros.cli.main import main
+from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.counter import centre_positions
 from fruitnerfpp_ros.core.export.ply import read_ply
 from test.accuracy_targets import assert_counted
 
@@ -60,8 +62,11 @@ def test_outputs_carry_the_same_ids(pipeline_run) -> None:
     assert labels is not None and len(labels) == len(cloud)
     sizes = np.bincount(labels, minlength=counts['total'] + 1)
     assert [int(s) for s in sizes[1:]] == [f['n_points'] for f in counts['fruits']]
+    # a fruit's centre: the median of its points moved along their viewing directions (which the file keeps)
+    assert cloud.view_dir is not None
+    moved = centre_positions(cloud, ClusterConfig())
     for fruit in counts['fruits']:
-        np.testing.assert_allclose(np.median(cloud.xyz[labels == fruit['id']], axis=0), fruit['center'], atol=1e-5)
+        np.testing.assert_allclose(np.median(moved[labels == fruit['id']], axis=0), fruit['center'], atol=1e-5)
         assert fruit['diameter'] > 0
     report = json.loads((run / 'export.json').read_text())
     assert report['method'] == 'surface' and report['n_kept'] == len(cloud) > 0

@@ -70,9 +70,28 @@ class ClusterConfig:
     """... and ``min_fruit_points`` = this x the points a fruit shows. None: the spacing-scaled value."""
 
     reference_fruit_diameter_m: float | None = 0.075
-    """Fruit diameter (m) for which ``lambda_e``, ``overlap_m``, ``merge_centers_m``, ``merge_agreeing_m`` and (with
+    """Fruit diameter (m) for which ``lambda_e``, ``overlap_m``, ``merge_*_m`` and (with
     ``reference_spacing_m``) the cluster sizes are given: a cloud that knows its scene's fruit diameter
     (``FruitPointCloud.fruit_diameter_m``) is clustered with them scaled to it (:meth:`for_cloud`). None: as given."""
+
+    centre_shift_diameters: float = 0.3333
+    """Before clustering, each point of a cloud that knows its points' viewing directions
+    (``FruitPointCloud.view_dir``) moves this many fruit diameters along its mean viewing direction, towards the
+    centre of the fruit whose surface it is, and fruit centres are the medians of the moved points (diameters and
+    extents stay those of the surface points). A ray that meets a sphere of radius r anywhere on its disc ends on
+    average 2/3 r in front of the centre along the ray, so 1/3 diameter puts a cap's points around its fruit's
+    centre, and the two caps of a fruit seen from the two sides of a row (0.6-1.4 diameters apart on the surface)
+    onto one place. Uses the cloud's fruit diameter (else ``reference_fruit_diameter_m``). 0 disables."""
+
+    merge_opposite_m: float = 0.045
+    """Clusters seen from opposite sides (mean viewing directions' cosine at most ``opposite_facing_cos``) whose
+    centres, after ``centre_shift_diameters``, lie closer than this (m; 0.6 reference diameters) are one fruit: a
+    fruit's two caps from the two sides of a row whose embeddings disagree (core/clustering/merge.py). On 30 trained
+    clouds (suites and the 5-tree row): 12 of 24 such pairs halving one fruit lie within 0.6 diameters, none of 47
+    pairs of two fruits within 0.7. Needs the cloud's viewing directions and a shift > 0; 0 disables."""
+
+    opposite_facing_cos: float = -0.5
+    """Largest cosine between two clusters' mean viewing directions for ``merge_opposite_m``."""
 
     merge_centers_m: float = 0.0
     """Clusters whose median centres are closer than this (m) are merged into one fruit (a fruit split in two by
@@ -153,6 +172,9 @@ class ClusterConfig:
             (self.points_per_partition >= 100, 'points_per_partition must be >= 100'),
             (self.overlap_m >= 0, 'overlap_m must be >= 0'),
             (self.merge_centers_m >= 0, 'merge_centers_m must be >= 0'),
+            (0 <= self.centre_shift_diameters <= 1, 'centre_shift_diameters must be in [0, 1]'),
+            (self.merge_opposite_m >= 0, 'merge_opposite_m must be >= 0'),
+            (-1 <= self.opposite_facing_cos <= 0, 'opposite_facing_cos must be in [-1, 0]'),
             (self.merge_agreeing_m >= 0, 'merge_agreeing_m must be >= 0'),
             (-1 <= self.merge_agreeing_cos <= 1, 'merge_agreeing_cos must be in [-1, 1]'),
             (self.cluster_selection_epsilon >= 0, 'cluster_selection_epsilon must be >= 0'),
@@ -170,7 +192,8 @@ class ClusterConfig:
                   fruit_points: float | None = None) -> 'ClusterConfig':
         """This config scaled to a cloud of point spacing ``spacing_m`` and fruit diameter ``fruit_diameter_m``.
 
-        Lengths (``lambda_e`` inversely, ``overlap_m``, ``merge_centers_m``, ``merge_agreeing_m``) scale with the
+        Lengths (``lambda_e`` inversely, ``overlap_m``, ``merge_centers_m``, ``merge_agreeing_m``,
+        ``merge_opposite_m``) scale with the
         fruit diameter over ``reference_fruit_diameter_m``. Cluster sizes: the ``fruit_share_*`` of ``fruit_points``
         (the points a fruit shows, measured on the cloud) when given, else the points a fruit holds, (fruit diameter
         / spacing)^2, over the reference's. Unknown values (None) leave their part unscaled.
@@ -181,6 +204,7 @@ class ClusterConfig:
             ratio = fruit_diameter_m / self.reference_fruit_diameter_m
             out = dataclasses.replace(out, lambda_e=self.lambda_e / ratio, overlap_m=self.overlap_m * ratio,
                                       merge_centers_m=self.merge_centers_m * ratio,
+                                      merge_opposite_m=self.merge_opposite_m * ratio,
                                       merge_agreeing_m=self.merge_agreeing_m * ratio)
         if fruit_points is not None and fruit_points > 0:
             if self.fruit_share_cluster is not None:

@@ -30,12 +30,14 @@ def label_groups(labels: np.ndarray, index: np.ndarray | None = None) -> tuple[n
     return sorted_labels[starts], np.split(points, starts[1:])
 
 
-def fruit_diameter(points: np.ndarray, center: np.ndarray) -> float:
-    """Diameter (m) of a fruit's points [N, 3]: twice the 90th percentile distance to its ``center`` (robust
-    to stray points); 0 for a single point."""
+def fruit_diameter(points: np.ndarray, center: np.ndarray, percentile: float = 90.0) -> float:
+    """Diameter (m) of a fruit's points [N, 3]: twice the ``percentile`` distance to its ``center``; 0 for a single
+    point. 90 (robust to stray points) where ``center`` is the points' own median, which for a cap seen from one
+    side lies inside the cap; 50 where ``center`` is the fruit's centre, so every surface point lies about a radius
+    from it."""
     if len(points) < 2:
         return 0.0
-    return 2.0 * float(np.percentile(np.linalg.norm(np.asarray(points, np.float64) - center, axis=1), 90.0))
+    return 2.0 * float(np.percentile(np.linalg.norm(np.asarray(points, np.float64) - center, axis=1), percentile))
 
 
 @dataclass(frozen=True)

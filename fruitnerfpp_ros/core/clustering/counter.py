@@ -19,14 +19,14 @@ from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit, fru
 from fruitnerfpp_ros.core.clustering.graph import nearest_labels
 from fruitnerfpp_ros.core.clustering.hdbscan_cluster import cluster_job, cluster_partition
 from fruitnerfpp_ros.core.clustering.merge import (keep_owned_clusters, merge_agreeing_neighbours, merge_close_centers,
-                                                   merge_clusters)
+                                                   merge_clusters, merge_opposite_caps)
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
 from fruitnerfpp_ros.core.clustering.split import split_oversized
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ClusteringError
 
-__all__ = ['count_fruits', 'points_per_fruit', 'fruits_from_labels']
+__all__ = ['count_fruits', 'points_per_fruit', 'fruits_from_labels', 'centre_positions']
 
 
 def _validate(cloud: FruitPointCloud) -> None:
@@ -38,12 +38,18 @@ def _validate(cloud: FruitPointCloud) -> None:
         raise ClusteringError('fruit point cloud has no embedding columns (D = 0)')
 
 
-def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, list[Fruit]]:
+def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray,
+                       centre_xyz: np.ndarray | None = None) -> tuple[np.ndarray, list[Fruit]]:
     """Fruit records from cluster labels, renumbered 1..K by centre (x, y, z).
 
     Args:
         xyz: [N, 3] positions (m).
         labels: [N] cluster labels, < 0 or 0-based; -1 = noise.
+        centre_xyz: [N, 3] the positions the centres are the medians of (the points moved towards their fruit's
+            centre, :func:`centre_positions`); None: ``xyz``. Diameters and extents are always ``xyz``'s: twice
+            the median distance of the points from a centre so found (on 30 trained clouds of the suites and the
+            5-tree row: 0.92 of the true diameter, 10-90 % 0.77-1.14), twice the 90th percentile from their own
+            median without it (1.25, 1.00-1.97: a cap's median lies inside the cap).
 
     Returns:
         ([N] int32 labels with ids 1..K and 0 = noise, the K fruits in id order).
@@ -52,7 +58,9 @@ def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
     _, groups = label_groups(labels)
     if not groups:
         return out, []
-    centers = np.array([np.median(xyz[g], axis=0) for g in groups], np.float64)
+    percentile = 90.0 if centre_xyz is None else 50.0
+    centre_xyz = xyz if centre_xyz is None else centre_xyz
+    centers = np.array([np.median(centre_xyz[g], axis=0) for g in groups], np.float64)
     rank = np.lexsort((centers[:, 2], centers[:, 1], centers[:, 0]))
     fruits = []
     for new_id, g_index in enumerate(rank, start=1):
@@ -61,8 +69,8 @@ def fruits_from_labels(xyz: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray,
         center = centers[g_index]
         lo, hi = np.percentile(p, [2.0, 98.0], axis=0)
         out[g] = new_id
-        fruits.append(Fruit(id=new_id, center=center, diameter_m=fruit_diameter(p, center), extent_m=hi - lo,
-                            n_points=len(g)))
+        fruits.append(Fruit(id=new_id, center=center, diameter_m=fruit_diameter(p, center, percentile),
+                            extent_m=hi - lo, n_points=len(g)))
     return out, fruits
 
 
@@ -98,6 +106,18 @@ def _cluster_partitions(jobs: list[tuple[np.ndarray, np.ndarray]], config: Clust
         results.append(cluster_partition(p, e, config, min_cluster_size=min_cluster_size, workers=config.n_jobs))
         report(i)
     return results, False
+
+
+def centre_positions(cloud: FruitPointCloud, config: ClusterConfig) -> np.ndarray:
+    """[N, 3] float32: the cloud's points moved ``config.centre_shift_diameters`` fruit diameters along their mean
+    viewing direction (towards the centre of the fruit they are the surface of); the points as they are when the
+    cloud has no viewing directions or the shift is 0."""
+    xyz = np.ascontiguousarray(cloud.xyz, np.float32)
+    diameter = cloud.fruit_diameter_m or config.reference_fruit_diameter_m
+    if cloud.view_dir is None or not config.centre_shift_diameters or not diameter:
+        return xyz
+    shift = np.float32(config.centre_shift_diameters * diameter)
+    return np.ascontiguousarray(xyz + shift * np.asarray(cloud.view_dir, np.float32))
 
 
 def points_per_fruit(xyz: np.ndarray, fruit_diameter_m: float, *, sample: int = 4000, seed: int = 0) -> float:
@@ -150,7 +170,9 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         stats.update(note='empty fruit point cloud: nothing to count', time_total_s=time.perf_counter() - started)
         return CountResult(np.zeros(0, np.int32), [], stats)
     t0 = time.perf_counter()
-    xyz = np.ascontiguousarray(cloud.xyz, np.float32)
+    xyz = centre_positions(cloud, base)
+    moved = cloud.view_dir is not None and config.centre_shift_diameters > 0
+    stats['mean_centre_shift_m'] = float(np.linalg.norm(xyz - cloud.xyz, axis=1).mean()) if n else 0.0
     emb = np.asarray(cloud.embedding, np.float32)
     emb = emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
 
@@ -197,7 +219,12 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
     labels, n_split = split_oversized(xyz, emb, labels, config)
     clusters_before_agreeing = int(labels.max()) + 1 if len(labels) else 0
     labels = merge_agreeing_neighbours(xyz, emb, labels, config.merge_agreeing_m, config.merge_agreeing_cos)
-    final_labels, fruits = fruits_from_labels(xyz, labels)
+    clusters_before_opposite = int(labels.max()) + 1 if len(labels) else 0
+    if moved:
+        labels = merge_opposite_caps(xyz, cloud.view_dir, labels, config.merge_opposite_m,
+                                     config.opposite_facing_cos)
+    final_labels, fruits = fruits_from_labels(np.asarray(cloud.xyz, np.float32), labels,
+                                              centre_xyz=xyz if moved else None)
     t_end = time.perf_counter()
     exact = [r[1] for r in results]
     stats.update({
@@ -205,7 +232,8 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         'partitions_in_executor': len(jobs) if parallel else 0,
         'clusters_before_merge': clusters_before_merge,
         'clusters_before_size_filter': clusters_before_filter, 'clusters_split': n_split,
-        'clusters_joined_agreeing': clusters_before_agreeing - (int(labels.max()) + 1 if len(labels) else 0),
+        'clusters_joined_agreeing': clusters_before_agreeing - clusters_before_opposite,
+        'clusters_joined_opposite': clusters_before_opposite - (int(labels.max()) + 1 if len(labels) else 0),
         'noise_points': int(np.count_nonzero(final_labels == 0)),
         'graph_exact_fraction': float(np.mean(exact)) if exact else 1.0,
         'time_partition_s': t_part - t0, 'time_hdbscan_s': t_hdb - t_part, 'time_assign_s': t_assign - t_hdb,

@@ -16,7 +16,7 @@ from fruitnerfpp_ros.core.clustering.count_result import label_groups
 from fruitnerfpp_ros.core.clustering.partitions import assign_to_cells
 
 __all__ = ['keep_owned_clusters', 'merge_clusters', 'merge_close_centers', 'merge_agreeing_neighbours',
-           'close_pair_cosines']
+           'merge_opposite_caps', 'close_pair_cosines']
 
 
 def keep_owned_clusters(xyz: np.ndarray, members: np.ndarray, local_labels: np.ndarray, partition: int,
@@ -119,6 +119,39 @@ def merge_agreeing_neighbours(xyz: np.ndarray, embedding: np.ndarray, labels: np
         return labels
     ids, _, pairs, cosine = close_pair_cosines(xyz, embedding, labels, reach_m)
     pairs = pairs[cosine >= min_cosine]
+    return _join_pairs(labels, ids[pairs[:, 0]], ids[pairs[:, 1]])
+
+
+def merge_opposite_caps(xyz: np.ndarray, view_dir: np.ndarray, labels: np.ndarray, reach_m: float,
+                        max_facing_cos: float) -> np.ndarray:
+    """Merge clusters seen from opposite sides whose median centres lie within ``reach_m`` (transitively).
+
+    Meant for points already moved towards their fruit's centre (``ClusterConfig.centre_shift_diameters``): a
+    fruit seen from both sides of a row leaves a cap on each side, and moved inwards both caps' centres fall near
+    the fruit's centre, while two fruits' centres stay about a diameter apart whatever side they were seen from.
+    The instance field need not agree across the two sides (it is trained on one view at a time), so this test
+    asks nothing of the embeddings.
+
+    Args:
+        xyz: [N, 3] (moved) positions (m).
+        view_dir: [N, 3] each point's mean viewing direction (any length).
+        labels: [N] labels, -1 noise, 0..K-1 clusters.
+        reach_m: largest distance between the two clusters' median centres (m); <= 0 returns ``labels``.
+        max_facing_cos: largest cosine between the clusters' mean viewing directions (e.g. -0.5: seen from
+            directions more than 120 degrees apart).
+
+    Returns:
+        [N] labels, -1 noise, 0..K'-1.
+    """
+    if reach_m <= 0 or not np.any(labels >= 0):
+        return labels
+    ids, groups, _, pairs = _close_cluster_pairs(xyz, labels, reach_m)
+    if len(pairs) == 0:
+        return labels
+    mean = np.array([np.asarray(view_dir[g], np.float64).mean(axis=0) for g in groups])
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+    facing = np.einsum('ij,ij->i', mean[pairs[:, 0]], mean[pairs[:, 1]])
+    pairs = pairs[facing <= max_facing_cos]
     return _join_pairs(labels, ids[pairs[:, 0]], ids[pairs[:, 1]])
 
 

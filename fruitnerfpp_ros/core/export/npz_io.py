@@ -18,7 +18,7 @@ _KEYS = ('xyz', 'rgb', 'semantic', 'embedding')
 
 def write_npz(path: str | Path, cloud: FruitPointCloud, labels: np.ndarray | None = None) -> Path:
     """Write ``cloud`` (+ optional [N] int32 ``labels``) compressed; atomic. Arrays: xyz, rgb, semantic, embedding
-    (+ labels, + spacing_m and fruit_diameter_m when known)."""
+    (+ labels, + spacing_m, fruit_diameter_m and view_dir when known)."""
     path = Path(path)
     arrays = {'xyz': cloud.xyz, 'rgb': cloud.rgb, 'semantic': cloud.semantic, 'embedding': cloud.embedding,
               'format_version': np.int32(1)}
@@ -28,6 +28,8 @@ def write_npz(path: str | Path, cloud: FruitPointCloud, labels: np.ndarray | Non
         arrays['spacing_m'] = np.float64(cloud.spacing_m)
     if cloud.fruit_diameter_m is not None:
         arrays['fruit_diameter_m'] = np.float64(cloud.fruit_diameter_m)
+    if cloud.view_dir is not None:
+        arrays['view_dir'] = np.asarray(cloud.view_dir, np.float32)
     with atomic_path(path, suffix='.tmp.npz') as tmp:
         np.savez_compressed(tmp, **arrays)
     return path
@@ -48,13 +50,14 @@ def read_npz(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
             spacing = float(data['spacing_m']) if 'spacing_m' in data else None
             diameter = float(data['fruit_diameter_m']) if 'fruit_diameter_m' in data else None
             arrays = [np.asarray(data[k]) for k in _KEYS]
+            view_dir = np.asarray(data['view_dir']) if 'view_dir' in data else None
             labels = np.asarray(data['labels']) if 'labels' in data else None
     except FileNotFoundError as err:
         raise ExportError(f'{path}: point cloud file not found') from err
     except (zipfile.BadZipFile, ValueError, OSError) as err:
         raise ExportError(f'{path}: not a readable point cloud .npz: {err}') from err
     try:
-        return FruitPointCloud(*arrays, spacing_m=spacing, fruit_diameter_m=diameter), labels
+        return FruitPointCloud(*arrays, spacing_m=spacing, fruit_diameter_m=diameter, view_dir=view_dir), labels
     except ExportError as err:
         raise ExportError(f'{path}: {err}') from err
 

@@ -1,7 +1,8 @@
 """Binary little-endian PLY for fruit point clouds (readable by Open3D, CloudCompare, MeshLab).
 
 Vertex properties, in order: ``x y z`` (float, m), ``red green blue`` (uchar), ``semantic`` (float fruit
-probability), ``emb_0 .. emb_{D-1}`` (float embedding) and, when labels are given, ``cluster`` (int, 0 = noise).
+probability), ``emb_0 .. emb_{D-1}`` (float embedding), when known ``view_x view_y view_z`` (float, the point's
+mean viewing direction, ``FruitPointCloud.view_dir``) and, when labels are given, ``cluster`` (int, 0 = noise).
 """
 
 from __future__ import annotations
@@ -22,9 +23,14 @@ FRUIT_DIAMETER_COMMENT = 'fruit_diameter_m'
 """Header comment ``fruit_diameter_m <metres>``: the scene's fruit diameter (``FruitPointCloud.fruit_diameter_m``)."""
 
 
-def _vertex_dtype(dim: int, with_labels: bool) -> np.dtype:
+_VIEW = ('view_x', 'view_y', 'view_z')
+
+
+def _vertex_dtype(dim: int, with_labels: bool, with_view: bool = False) -> np.dtype:
     fields = [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('red', 'u1'), ('green', 'u1'), ('blue', 'u1'),
               ('semantic', '<f4')] + [(f'emb_{i}', '<f4') for i in range(dim)]
+    if with_view:
+        fields += [(name, '<f4') for name in _VIEW]
     if with_labels:
         fields.append(('cluster', '<i4'))
     return np.dtype(fields)
@@ -35,7 +41,7 @@ def write_ply(path: str | Path, cloud: FruitPointCloud, labels: np.ndarray | Non
     path = Path(path)
     if labels is not None and len(labels) != len(cloud):
         raise ExportError(f'{path}: {len(labels)} labels for {len(cloud)} points')
-    dtype = _vertex_dtype(cloud.embedding_dim, labels is not None)
+    dtype = _vertex_dtype(cloud.embedding_dim, labels is not None, cloud.view_dir is not None)
     vertices = np.empty(len(cloud), dtype)
     for axis, name in enumerate('xyz'):
         vertices[name] = cloud.xyz[:, axis]
@@ -44,6 +50,9 @@ def write_ply(path: str | Path, cloud: FruitPointCloud, labels: np.ndarray | Non
     vertices['semantic'] = cloud.semantic
     for i in range(cloud.embedding_dim):
         vertices[f'emb_{i}'] = cloud.embedding[:, i]
+    if cloud.view_dir is not None:
+        for axis, name in enumerate(_VIEW):
+            vertices[name] = cloud.view_dir[:, axis]
     if labels is not None:
         vertices['cluster'] = labels
     comments = ['fruitnerfpp_ros fruit point cloud', f'embedding_dim {cloud.embedding_dim}']
@@ -83,8 +92,9 @@ def read_ply(path: str | Path) -> tuple[FruitPointCloud, np.ndarray | None]:
     embedding = (np.stack([v[n] for n in emb_names], 1).astype(np.float32) if emb_names
                  else np.zeros((n_vertices, 0), np.float32))
     labels = v['cluster'].astype(np.int32) if 'cluster' in names else None
+    view_dir = np.stack([v[n] for n in _VIEW], 1).astype(np.float32) if set(_VIEW) <= names else None
     return FruitPointCloud(xyz, rgb, semantic, embedding, _value_from_comments(comments, SPACING_COMMENT),
-                           _value_from_comments(comments, FRUIT_DIAMETER_COMMENT)), labels
+                           _value_from_comments(comments, FRUIT_DIAMETER_COMMENT), view_dir), labels
 
 
 def _value_from_comments(comments: list[str], key: str) -> float | None:

@@ -24,6 +24,10 @@ class FruitPointCloud:
             sizes to it (``ClusterConfig.reference_spacing_m``). Saved in the PLY header and the .npz.
         fruit_diameter_m: the scene's fruit diameter when known; clustering scales its lengths (the Euclidean
             weight, partition overlap) and sizes to it (``ClusterConfig.reference_fruit_diameter_m``). Saved too.
+        view_dir: [N, 3] float32 or None: per point, the mean of the unit directions of the camera rays that put
+            it there (length 1 when every ray came from one direction, shorter when they spread). Clustering moves
+            a point along it towards its fruit's centre (``ClusterConfig.centre_shift_diameters``): the caps of
+            one fruit seen from the two sides of a row then meet. None when unknown (a grid export, an older file).
 
     Raises:
         ExportError: the arrays' shapes disagree.
@@ -35,13 +39,16 @@ class FruitPointCloud:
     embedding: np.ndarray
     spacing_m: float | None = None
     fruit_diameter_m: float | None = None
+    view_dir: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         n = len(self.xyz)
         if self.xyz.shape != (n, 3) or self.rgb.shape != (n, 3) or self.semantic.shape != (n,) \
-                or self.embedding.ndim != 2 or len(self.embedding) != n:
+                or self.embedding.ndim != 2 or len(self.embedding) != n \
+                or (self.view_dir is not None and self.view_dir.shape != (n, 3)):
             raise ExportError(f'inconsistent FruitPointCloud shapes: xyz {self.xyz.shape}, rgb {self.rgb.shape}, '
-                              f'semantic {self.semantic.shape}, embedding {self.embedding.shape}')
+                              f'semantic {self.semantic.shape}, embedding {self.embedding.shape}'
+                              + ('' if self.view_dir is None else f', view_dir {self.view_dir.shape}'))
 
     def __len__(self) -> int:
         return len(self.xyz)
@@ -58,4 +65,5 @@ class FruitPointCloud:
 
     def subset(self, mask_or_index: np.ndarray) -> 'FruitPointCloud':
         return FruitPointCloud(self.xyz[mask_or_index], self.rgb[mask_or_index], self.semantic[mask_or_index],
-                               self.embedding[mask_or_index], self.spacing_m, self.fruit_diameter_m)
+                               self.embedding[mask_or_index], self.spacing_m, self.fruit_diameter_m,
+                               None if self.view_dir is None else self.view_dir[mask_or_index])

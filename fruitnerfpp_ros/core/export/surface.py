@@ -181,8 +181,8 @@ def _fruit_pixels(masks: torch.Tensor, views: list[int], max_rays: int) -> tuple
 def _behind_foliage(field: FruitField, grid: OccupancyGrid, settings: RenderSettings, rays: RayBundle,
                     config: ExportConfig) -> tuple[torch.Tensor, ...]:
     """Candidate fruit points along ``rays`` wherever they lie: (ray index [K], position [K, 3], embedding [K, D],
-    rgb [K, 3], fruit probability [K]) of the samples that are dense and fruit. Every sample is evaluated (no stop
-    behind an opaque haze: what lies behind it is the point)."""
+    rgb [K, 3], fruit probability [K], ray direction [K, 3]) of the samples that are dense and fruit. Every sample
+    is evaluated (no stop behind an opaque haze: what lies behind it is the point)."""
     samples = march_rays(rays, grid, settings.step, near=settings.near)
     with autocast_for(rays.origins.device, settings.mixed_precision):
         geo = field.geometry(samples.positions)
@@ -194,7 +194,7 @@ def _behind_foliage(field: FruitField, grid: OccupancyGrid, settings: RenderSett
         xyz, features = samples.positions[at], geo.features[at]
         emb = F.normalize(field.embedding(xyz, features).float(), dim=-1)
         rgb = field.rgb(features, samples.directions[at]).float().clamp(0, 1)
-    return samples.ray_index[at], xyz, emb, rgb, prob[fruit]
+    return samples.ray_index[at], xyz, emb, rgb, prob[fruit], samples.directions[at].float()
 
 
 @torch.no_grad()
@@ -222,7 +222,7 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
     hits, n_pixels = _fruit_pixels(dataset.semantic_masks, views, config.max_rays)   # [M, 3]: (view, row, col)
     view_of = hits[:, 0]
     poses, intrinsics = T_world_camera.to(device), dataset.intrinsics.to(device)
-    parts: dict[str, list[torch.Tensor]] = {k: [] for k in ('xyz', 'view', 'emb', 'rgb', 'prob', 'footprint')}
+    parts: dict[str, list[torch.Tensor]] = {k: [] for k in ('xyz', 'view', 'emb', 'rgb', 'prob', 'dir', 'footprint')}
     focal = torch.sqrt(intrinsics[:, 0] * intrinsics[:, 1])
     n_opaque = n_fruit = n_behind = 0
     # a ray holds up to box diagonal / step samples before empty-space skipping: bound the samples of a chunk
@@ -249,19 +249,21 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
         parts['emb'].append(F.normalize(out.embedding[idx], dim=-1))
         parts['rgb'].append(out.rgb[idx].float().clamp(0, 1))
         parts['prob'].append(prob[idx].clamp(0, 1))
+        parts['dir'].append(rays.directions[idx])
         parts['footprint'].append(out.depth[idx] / focal[view[idx]])     # a pixel's width on the surface (m)
         if config.behind_foliage != 'none':
             source = torch.arange(len(view), device=device)
             if config.behind_foliage == 'unsurfaced':
                 source = torch.nonzero(~fruit).squeeze(1)
             if len(source):
-                ray, xyz, emb, rgb, p = _behind_foliage(
+                ray, xyz, emb, rgb, p, direction = _behind_foliage(
                     field, grid, settings, RayBundle(rays.origins[source], rays.directions[source]), config)
                 parts['xyz'].append(xyz)
                 parts['view'].append(view[source][ray])
                 parts['emb'].append(emb)
                 parts['rgb'].append(rgb)
                 parts['prob'].append(p)
+                parts['dir'].append(direction)
                 n_behind += len(ray)
         if (c + 1) % max(1, n_chunks // 20) == 0 or c + 1 == n_chunks:
             progress(ProgressEvent(Phase.EXPORT, c + 1, n_chunks,
@@ -276,7 +278,8 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
         xyz = torch.cat(parts['xyz']).double()
         mean_xyz, means, n_views = merge_on_voxels(
             xyz, torch.cat(parts['view']),
-            {'emb': torch.cat(parts['emb']), 'rgb': torch.cat(parts['rgb']), 'prob': torch.cat(parts['prob'])}, voxel)
+            {'emb': torch.cat(parts['emb']), 'rgb': torch.cat(parts['rgb']), 'prob': torch.cat(parts['prob']),
+             'dir': torch.cat(parts['dir'])}, voxel)
         multi = n_views >= config.min_views
         agreement = mask_agreement(mean_xyz[multi].float(), dataset, T_world_camera, views, config.mask_dilation_px)
         kept = multi.clone()
@@ -286,7 +289,8 @@ def export_surface_cloud(field: FruitField, grid: OccupancyGrid, settings: Rende
             emb = F.normalize(means['emb'][kept].float(), dim=-1)
             rgb = (means['rgb'][kept] * 255 + 0.5).clamp(0, 255).to(torch.uint8)
             cloud = FruitPointCloud(mean_xyz[kept].float().cpu().numpy(), rgb.cpu().numpy(),
-                                    means['prob'][kept].float().cpu().numpy(), emb.cpu().numpy(), spacing_m=voxel)
+                                    means['prob'][kept].float().cpu().numpy(), emb.cpu().numpy(), spacing_m=voxel,
+                                    view_dir=means['dir'][kept].float().cpu().numpy())
     report = SurfaceExportReport(views=len(views), n_fruit_pixels=n_pixels, n_rays=len(hits), n_opaque=n_opaque,
                                  n_fruit=n_fruit, n_behind=n_behind, n_voxels=n_voxels, n_multi_view=n_multi,
                                  n_kept=n_kept, voxel_size_m=voxel, fruit_diameter_m=fruit_diameter_m,

@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from sklearn.metrics import adjusted_rand_score
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
 from fruitnerfpp_ros.core.clustering.partitions import make_partitions
 from fruitnerfpp_ros.core.clustering.synthetic_cloud import make_fruit_cloud
@@ -149,6 +152,9 @@ def test_config_rejects_impossible_values() -> None:
         ClusterConfig(merge_agreeing_m=-0.1)
     with pytest.raises(ConfigError, match='merge_agreeing_cos'):
         ClusterConfig(merge_agreeing_cos=1.5)
+    for bad in ({'centre_shift_diameters': 1.5}, {'merge_opposite_m': -0.01}, {'opposite_facing_cos': 0.5}):
+        with pytest.raises(ConfigError, match=next(iter(bad))):
+            ClusterConfig(**bad)
 
 
 def test_lengths_and_sizes_follow_the_fruit_not_the_metre() -> None:
@@ -172,22 +178,77 @@ def test_a_scaled_copy_of_a_cloud_counts_the_same() -> None:
     assert b.stats['points_per_fruit'] == a.stats['points_per_fruit']
 
 
-def _two_sided(touching: bool) -> tuple[FruitPointCloud, np.ndarray]:
-    """Fruit seen from both sides of a row (along y): each fruit's front and back cap, its sides missing."""
+def _two_sided(touching: bool, view_dir: bool = False) -> tuple[FruitPointCloud, np.ndarray, np.ndarray]:
+    """Fruit seen from both sides of a row (along y): each fruit's front and back cap, its sides missing; with
+    ``view_dir`` the cloud knows each point's viewing direction (cameras far off on the cap's side). Returns
+    (cloud, each point's true fruit, the true centres)."""
     synth = make_fruit_cloud(6000, 12, touching=touching, seed=3)
     cloud = synth.cloud
     across = (cloud.xyz[:, 1] - synth.centers[synth.labels, 1]) / synth.radius_m
     keep = np.abs(across) > 0.5
+    direction = np.zeros((int(keep.sum()), 3), np.float32)
+    direction[:, 1] = -np.sign(across[keep])   # a ray from the +y side runs towards -y
     caps = FruitPointCloud(cloud.xyz[keep], cloud.rgb[keep], cloud.semantic[keep], cloud.embedding[keep],
-                           spacing_m=cloud.spacing_m, fruit_diameter_m=2 * synth.radius_m)
-    return caps, synth.labels[keep]
+                           spacing_m=cloud.spacing_m, fruit_diameter_m=2 * synth.radius_m,
+                           view_dir=direction if view_dir else None)
+    return caps, synth.labels[keep], synth.centers
+
+
+def _back_caps_disagreeing(caps: FruitPointCloud, truth: np.ndarray, cosine: float) -> FruitPointCloud:
+    """The caps with each back cap's embedding turned away from its front cap's (to ``cosine``), as an instance
+    field trained one view at a time leaves a fruit seen from the two sides of a row."""
+    rng = np.random.default_rng(1)
+    emb = caps.embedding.astype(np.float64)
+    back = caps.view_dir[:, 1] > 0
+    away = rng.normal(size=(int(truth.max()) + 1, emb.shape[1]))[truth[back]]
+    away -= np.einsum('ij,ij->i', away, emb[back])[:, None] * emb[back]
+    away /= np.linalg.norm(away, axis=1, keepdims=True)
+    emb[back] = cosine * emb[back] + np.sqrt(1 - cosine ** 2) * away
+    return dataclasses.replace(caps, embedding=emb.astype(np.float32))
 
 
 @pytest.mark.parametrize('touching', [False, True])
 def test_a_fruit_seen_from_both_sides_counts_once_and_touching_fruit_stay_apart(touching: bool) -> None:
-    caps, truth = _two_sided(touching)
+    caps, truth, _ = _two_sided(touching)
     split = count_fruits(caps, ClusterConfig(n_jobs=1, merge_agreeing_m=0.0))
     assert split.count == 24  # the defect: each cap a fruit of its own
     joined = count_fruits(caps, ClusterConfig(n_jobs=1))  # the default joins them
     assert joined.count == 12 and joined.stats['clusters_joined_agreeing'] == 12
     assert adjusted_rand_score(truth, joined.labels) > 0.99
+
+
+def _centre_error(result: CountResult, centres: np.ndarray, radius_m: float) -> float:
+    """Median distance of the counted centres from their nearest true centre, in fruit radii."""
+    dist = np.linalg.norm(result.centers()[:, None] - centres[None], axis=2)
+    return float(np.median(dist.min(1))) / radius_m
+
+
+@pytest.mark.parametrize('touching', [False, True])
+def test_points_moved_along_their_viewing_direction_put_a_fruit_on_its_centre(touching: bool) -> None:
+    """A cap's median lies about 0.7 radii in front of its fruit's centre; moved a third of a diameter along the
+    rays that saw them, both caps' points meet on the centre: one cluster without the caps' join, and the centre
+    where the fruit is (the distance the evaluation and the row's cross-segment match measure)."""
+    caps, truth, centres = _two_sided(touching, view_dir=True)
+    radius = 0.5 * float(caps.fruit_diameter_m)
+    unmoved = count_fruits(caps, ClusterConfig(n_jobs=1, merge_agreeing_m=0.0, centre_shift_diameters=0.0))
+    assert unmoved.count == 24 and _centre_error(unmoved, centres, radius) > 0.4
+    moved = count_fruits(caps, ClusterConfig(n_jobs=1, merge_agreeing_m=0.0))   # the default moves them
+    assert moved.count == 12 and moved.stats['clusters_joined_agreeing'] == 0
+    assert adjusted_rand_score(truth, moved.labels) > 0.99
+    assert _centre_error(moved, centres, radius) < 0.15
+    assert moved.stats['mean_centre_shift_m'] == pytest.approx(2 * radius / 3, rel=1e-3)
+    # diameters stay those of the surface points (about the true diameter, not the moved points' spread)
+    assert np.median([f.diameter_m for f in moved.fruits]) == pytest.approx(2 * radius, rel=0.15)
+
+
+@pytest.mark.parametrize('touching', [False, True])
+def test_caps_seen_from_opposite_sides_join_though_their_embeddings_disagree(touching: bool) -> None:
+    caps, truth, _ = _two_sided(touching, view_dir=True)
+    caps = _back_caps_disagreeing(caps, truth, cosine=0.3)
+    split = count_fruits(caps, ClusterConfig(n_jobs=1, merge_opposite_m=0.0))
+    assert split.count == 24   # moved onto one place, the caps still differ in embedding
+    joined = count_fruits(caps, ClusterConfig(n_jobs=1))   # the default joins caps seen from opposite sides
+    assert joined.count == 12 and joined.stats['clusters_joined_opposite'] == 12
+    assert adjusted_rand_score(truth, joined.labels) > 0.99   # touching fruits stay apart
+    same_side = dataclasses.replace(caps, view_dir=np.abs(caps.view_dir))   # as if both were seen from one side
+    assert count_fruits(same_side, ClusterConfig(n_jobs=1)).stats['clusters_joined_opposite'] == 0

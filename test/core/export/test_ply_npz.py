@@ -53,6 +53,18 @@ def test_npz_round_trip(tmp_path: Path) -> None:
     np.testing.assert_array_equal(labels, synth.labels)
 
 
+def test_the_viewing_directions_travel_with_the_cloud(tmp_path: Path) -> None:
+    cloud = make_fruit_cloud(200, 2, dim=4, seed=2).cloud
+    directed = dataclasses.replace(cloud, view_dir=np.tile(np.float32([[0, -1, 0]]), (len(cloud), 1)))
+    np.testing.assert_array_equal(read_npz(write_npz(tmp_path / 'd.npz', directed))[0].view_dir, directed.view_dir)
+    np.testing.assert_array_equal(read_ply(write_ply(tmp_path / 'd.ply', directed))[0].view_dir, directed.view_dir)
+    assert read_npz(write_npz(tmp_path / 'n.npz', cloud))[0].view_dir is None
+    assert read_ply(write_ply(tmp_path / 'n.ply', cloud))[0].view_dir is None
+    assert directed.subset(np.arange(10)).view_dir.shape == (10, 3)
+    with pytest.raises(ExportError, match='view_dir'):
+        dataclasses.replace(cloud, view_dir=np.zeros((3, 3), np.float32))
+
+
 def test_the_export_spacing_travels_with_the_cloud(tmp_path: Path) -> None:
     """Counting a copied cloud file must scale cluster sizes like the pipeline did: the voxel is in the file."""
     spaced = dataclasses.replace(make_fruit_cloud(200, 2, dim=4, seed=2).cloud, spacing_m=0.0143)
