@@ -4,7 +4,9 @@
 Export and clustering are the cheap end of the pipeline: trying a rule on the fields a suite or a row already
 trained costs seconds per scene instead of a new training. A variant's keys are ClusterConfig fields, or
 ExportConfig fields prefixed with ``export.`` (the cloud is then exported again from the run's checkpoint, into
-OUT/clouds, e.g. ``--variant views3=export.min_views:3``). The runs are read, never rewritten.
+OUT/clouds, e.g. ``--variant views3=export.min_views:3``). The runs are read, never rewritten. A cloud exported
+before 2026-12-05 (session 27) lacks its points' viewing directions, so the count cannot move its points to their
+fruits' centres: give such variants an export key (``export.min_views:2``, the default, exports it again).
 
 - A suite directory (``fruitnerfpp bench accuracy --out DIR``): every ``DIR/<scene>/run/cloud.npz`` is counted with
   each variant and scored as the suite scores it (Hungarian, one GT diameter, fruits no training view saw left

@@ -172,6 +172,9 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
     t0 = time.perf_counter()
     xyz = centre_positions(cloud, base)
     moved = cloud.view_dir is not None and config.centre_shift_diameters > 0
+    if config.centre_shift_diameters > 0 and cloud.view_dir is None:
+        stats['centre_shift_note'] = ('the cloud has no viewing directions (a grid export, or exported before they '
+                                      'were kept): points not moved to their fruits\' centres')
     stats['mean_centre_shift_m'] = float(np.linalg.norm(xyz - cloud.xyz, axis=1).mean()) if n else 0.0
     emb = np.asarray(cloud.embedding, np.float32)
     emb = emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
