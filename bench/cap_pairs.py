@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.count_result import label_groups
 from fruitnerfpp_ros.core.clustering.counter import centre_positions
-from fruitnerfpp_ros.core.clustering.merge import close_pair_cosines
+from fruitnerfpp_ros.core.clustering.merge import close_pair_cosines, group_mean_directions
 from fruitnerfpp_ros.core.evaluation.ground_truth import GroundTruth, load_ground_truth
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
@@ -49,6 +49,13 @@ def _runs(paths: list[Path], gt: Path | None) -> Iterator[tuple[Path, Path]]:
             yield from ((run, run.parent / 'data' / 'gt_fruits.json') for run in sorted(path.glob('*/run')))
 
 
+def _nearest_true(centres: np.ndarray, gt: GroundTruth) -> tuple[np.ndarray, np.ndarray]:
+    """Per counted centre [K, 3]: the nearest true fruit, and whether it lies within that fruit's diameter."""
+    dist = np.linalg.norm(centres[:, None] - gt.centers[None], axis=2)
+    nearest = dist.argmin(1)
+    return nearest, dist[np.arange(len(centres)), nearest] <= gt.diameters[nearest]
+
+
 def _pair_cosines(run: Path, gt_path: Path, reach: float) -> tuple[list[float], list[float], list[tuple]]:
     """(cosines of the pairs halving one true fruit, of the pairs of two fruits) in one run's counted cloud, the
     pairs and cosines being those the caps' join weighs (:func:`close_pair_cosines`); and, for a cloud with viewing
@@ -58,12 +65,9 @@ def _pair_cosines(run: Path, gt_path: Path, reach: float) -> tuple[list[float], 
     cloud, labels = read_cloud(run / 'cloud.npz')
     if labels is None or not np.any(labels > 0):
         return [], [], []
-    diameter = float(np.median(gt.diameters))
     _, centres, pairs, cosine = close_pair_cosines(cloud.xyz, cloud.embedding, labels.astype(np.int64) - 1,
-                                                   reach * diameter)
-    dist = np.linalg.norm(centres[:, None] - gt.centers[None], axis=2)
-    nearest = dist.argmin(1)
-    near = dist[np.arange(len(centres)), nearest] <= gt.diameters[nearest]
+                                                   reach * float(np.median(gt.diameters)))
+    nearest, near = _nearest_true(centres, gt)
     both = near[pairs[:, 0]] & near[pairs[:, 1]]
     same = nearest[pairs[:, 0]] == nearest[pairs[:, 1]]
     return cosine[both & same].tolist(), cosine[both & ~same].tolist(), _moved_pairs(cloud, labels, gt, reach)
@@ -75,13 +79,10 @@ def _moved_pairs(cloud: FruitPointCloud, labels: np.ndarray, gt: GroundTruth, re
     if cloud.view_dir is None:
         return []
     moved = centre_positions(cloud, ClusterConfig())
-    ids, groups = label_groups(labels.astype(np.int64) - 1)
+    _, groups = label_groups(labels.astype(np.int64) - 1)
     centres = np.array([np.median(moved[g], axis=0) for g in groups])
-    facing = np.array([cloud.view_dir[g].mean(axis=0) for g in groups])
-    facing /= np.maximum(np.linalg.norm(facing, axis=1, keepdims=True), 1e-12)
-    dist = np.linalg.norm(centres[:, None] - gt.centers[None], axis=2)
-    nearest = dist.argmin(1)
-    near = dist[np.arange(len(centres)), nearest] <= gt.diameters[nearest]
+    facing = group_mean_directions(cloud.view_dir, groups)
+    nearest, near = _nearest_true(centres, gt)
     diameter = float(np.median(gt.diameters))
     pairs = cKDTree(centres).query_pairs(reach * diameter, output_type='ndarray')
     return [(bool(nearest[i] == nearest[j]), bool(facing[i] @ facing[j] <= -0.5),

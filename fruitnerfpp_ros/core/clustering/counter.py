@@ -108,16 +108,24 @@ def _cluster_partitions(jobs: list[tuple[np.ndarray, np.ndarray]], config: Clust
     return results, False
 
 
+def _centre_shift_m(cloud: FruitPointCloud, config: ClusterConfig) -> float:
+    """How far (m) :func:`centre_positions` moves the points: 0 when the cloud has no viewing directions, the shift
+    is off or no fruit diameter is known (neither the cloud's nor ``reference_fruit_diameter_m``)."""
+    diameter = cloud.fruit_diameter_m or config.reference_fruit_diameter_m
+    if cloud.view_dir is None or not diameter:
+        return 0.0
+    return config.centre_shift_diameters * diameter
+
+
 def centre_positions(cloud: FruitPointCloud, config: ClusterConfig) -> np.ndarray:
     """[N, 3] float32: the cloud's points moved ``config.centre_shift_diameters`` fruit diameters along their mean
     viewing direction (towards the centre of the fruit they are the surface of); the points as they are when the
     cloud has no viewing directions or the shift is 0."""
     xyz = np.ascontiguousarray(cloud.xyz, np.float32)
-    diameter = cloud.fruit_diameter_m or config.reference_fruit_diameter_m
-    if cloud.view_dir is None or not config.centre_shift_diameters or not diameter:
+    shift = _centre_shift_m(cloud, config)
+    if not shift:
         return xyz
-    shift = np.float32(config.centre_shift_diameters * diameter)
-    return np.ascontiguousarray(xyz + shift * np.asarray(cloud.view_dir, np.float32))
+    return np.ascontiguousarray(xyz + np.float32(shift) * np.asarray(cloud.view_dir, np.float32))
 
 
 def points_per_fruit(xyz: np.ndarray, fruit_diameter_m: float, *, sample: int = 4000, seed: int = 0) -> float:
@@ -171,11 +179,11 @@ def count_fruits(cloud: FruitPointCloud, config: ClusterConfig | None = None, *,
         return CountResult(np.zeros(0, np.int32), [], stats)
     t0 = time.perf_counter()
     xyz = centre_positions(cloud, base)
-    moved = cloud.view_dir is not None and config.centre_shift_diameters > 0
+    moved = _centre_shift_m(cloud, base) > 0
     if config.centre_shift_diameters > 0 and cloud.view_dir is None:
         stats['centre_shift_note'] = ('the cloud has no viewing directions (a grid export, or exported before they '
                                       'were kept): points not moved to their fruits\' centres')
-    stats['mean_centre_shift_m'] = float(np.linalg.norm(xyz - cloud.xyz, axis=1).mean()) if n else 0.0
+    stats['mean_centre_shift_m'] = float(np.linalg.norm(xyz - cloud.xyz, axis=1).mean()) if moved else 0.0
     emb = np.asarray(cloud.embedding, np.float32)
     emb = emb / np.maximum(np.linalg.norm(emb, axis=1, keepdims=True), 1e-12)
 

@@ -16,7 +16,7 @@ from fruitnerfpp_ros.core.clustering.count_result import label_groups
 from fruitnerfpp_ros.core.clustering.partitions import assign_to_cells
 
 __all__ = ['keep_owned_clusters', 'merge_clusters', 'merge_close_centers', 'merge_agreeing_neighbours',
-           'merge_opposite_caps', 'close_pair_cosines']
+           'merge_opposite_caps', 'close_pair_cosines', 'group_mean_directions']
 
 
 def keep_owned_clusters(xyz: np.ndarray, members: np.ndarray, local_labels: np.ndarray, partition: int,
@@ -148,8 +148,7 @@ def merge_opposite_caps(xyz: np.ndarray, view_dir: np.ndarray, labels: np.ndarra
     ids, groups, _, pairs = _close_cluster_pairs(xyz, labels, reach_m)
     if len(pairs) == 0:
         return labels
-    mean = np.array([np.asarray(view_dir[g], np.float64).mean(axis=0) for g in groups])
-    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+    mean = group_mean_directions(view_dir, groups)
     facing = np.einsum('ij,ij->i', mean[pairs[:, 0]], mean[pairs[:, 1]])
     pairs = pairs[facing <= max_facing_cos]
     return _join_pairs(labels, ids[pairs[:, 0]], ids[pairs[:, 1]])
@@ -161,11 +160,18 @@ def close_pair_cosines(xyz: np.ndarray, embedding: np.ndarray, labels: np.ndarra
     [P, 2] pairs of positions in the ids whose centres lie within ``reach_m``, [P] cosine of each pair's mean unit
     embeddings). ``labels``: [N], -1 noise; at least one cluster."""
     ids, groups, centers, pairs = _close_cluster_pairs(xyz, labels, reach_m)
-    unit = np.asarray(embedding, np.float64)
-    unit = unit / np.maximum(np.linalg.norm(unit, axis=1, keepdims=True), 1e-12)
-    mean = np.array([unit[g].mean(axis=0) for g in groups])
-    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+    mean = group_mean_directions(_unit(embedding), groups)
     return ids, centers, pairs, np.einsum('ij,ij->i', mean[pairs[:, 0]], mean[pairs[:, 1]])
+
+
+def _unit(vectors: np.ndarray) -> np.ndarray:
+    vectors = np.asarray(vectors, np.float64)
+    return vectors / np.maximum(np.linalg.norm(vectors, axis=-1, keepdims=True), 1e-12)
+
+
+def group_mean_directions(vectors: np.ndarray, groups: list[np.ndarray]) -> np.ndarray:
+    """[K, D] the unit direction of each group's mean vector (``vectors`` [N, D], ``groups`` index arrays)."""
+    return _unit(np.array([np.asarray(vectors[g], np.float64).mean(axis=0) for g in groups]))
 
 
 def _close_cluster_pairs(xyz: np.ndarray, labels: np.ndarray,
