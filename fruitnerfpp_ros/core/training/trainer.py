@@ -102,10 +102,17 @@ class TrainSummary:
 
 
 def make_optimizer(groups: list[ParamGroup], config: TrainConfig) -> torch.optim.Adam:
-    """Adam over ``groups`` (empty groups left out); learning rates are set per step by the loop."""
+    """Adam over ``groups`` (empty groups left out); learning rates are set per step by the loop.
+
+    The fused update (one kernel over all parameters) where torch has one for the parameters' device: on the CPU
+    it takes a step over the ``cpu`` preset's three 2^15-entry hash tables from 10 to 1.6 ms (one thread), some
+    30 s of a suite scene's 3,600 steps. Same update rule; only the floating-point rounding differs.
+    """
     o = config.optimizer
-    return torch.optim.Adam([{'params': list(g.params), 'lr': 0.0} for g in groups if g.params],
-                            betas=(o.beta1, o.beta2), eps=o.eps)
+    params = [{'params': list(g.params), 'lr': 0.0} for g in groups if g.params]
+    devices = {p.device.type for group in params for p in group['params']}
+    return torch.optim.Adam(params, betas=(o.beta1, o.beta2), eps=o.eps,
+                            fused=True if devices and devices <= {'cpu', 'cuda'} else None)
 
 
 @dataclass

@@ -74,6 +74,38 @@ def test_the_loop_sets_each_groups_rate_on_the_optimiser(parts: tuple) -> None:
     assert [pg['lr'] for pg in optimizer.param_groups] == pytest.approx([gr.lr_at(fraction) for gr in groups])
 
 
+def test_the_optimiser_is_fused_on_the_cpu_and_takes_the_reference_adam_step(parts: tuple) -> None:
+    """The fused update (one kernel over every parameter: 6x faster per step on the CPU) is still Adam: one step
+    from the same gradients moves every parameter as torch's reference (per-tensor loop) Adam does."""
+    _, model, stages = parts
+    groups = stages[0].param_groups(model)
+    optimizer = make_optimizer(groups, REFINED)
+    assert optimizer.defaults['fused'] is True
+    params = [p for group in optimizer.param_groups for p in group['params']]
+    copies = [torch.nn.Parameter(p.detach().clone()) for p in params]
+    o = REFINED.optimizer
+    reference = torch.optim.Adam([{'params': copies[i:i + len(g['params'])], 'lr': 0.01}
+                                  for i, g in zip(np.cumsum([0] + [len(g['params']) for g in optimizer.param_groups]),
+                                                  optimizer.param_groups)],
+                                 betas=(o.beta1, o.beta2), eps=o.eps, foreach=False)
+    gen = torch.Generator().manual_seed(3)
+    for p, c in zip(params, copies):
+        p.grad = torch.randn(p.shape, generator=gen)
+        c.grad = p.grad.clone()
+    for group in optimizer.param_groups:
+        group['lr'] = 0.01
+    before = [p.detach().clone() for p in params]
+    optimizer.step()
+    reference.step()
+    for p, c, b in zip(params, copies, before):
+        assert not torch.equal(p.detach(), b)
+        torch.testing.assert_close(p.detach(), c.detach(), rtol=1e-5, atol=1e-6)
+    with torch.no_grad():  # the module-scoped model is shared: put it back
+        for p, b in zip(params, before):
+            p.copy_(b)
+            p.grad = None
+
+
 def test_stage_two_keeps_the_geometry_rate_stage_one_ended_with(scene: Path, tmp_path: Path) -> None:
     """Read back from the optimiser state of a checkpoint taken at the end of stage 2."""
     stop = threading.Event()
