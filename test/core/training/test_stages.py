@@ -81,12 +81,11 @@ def test_the_optimiser_is_fused_on_the_cpu_and_takes_the_reference_adam_step(par
     groups = stages[0].param_groups(model)
     optimizer = make_optimizer(groups, REFINED)
     assert optimizer.defaults['fused'] is True
+    copied = [[torch.nn.Parameter(p.detach().clone()) for p in group['params']] for group in optimizer.param_groups]
     params = [p for group in optimizer.param_groups for p in group['params']]
-    copies = [torch.nn.Parameter(p.detach().clone()) for p in params]
+    copies = [c for group in copied for c in group]
     o = REFINED.optimizer
-    reference = torch.optim.Adam([{'params': copies[i:i + len(g['params'])], 'lr': 0.01}
-                                  for i, g in zip(np.cumsum([0] + [len(g['params']) for g in optimizer.param_groups]),
-                                                  optimizer.param_groups)],
+    reference = torch.optim.Adam([{'params': group, 'lr': 0.01} for group in copied],
                                  betas=(o.beta1, o.beta2), eps=o.eps, foreach=False)
     gen = torch.Generator().manual_seed(3)
     for p, c in zip(params, copies):
