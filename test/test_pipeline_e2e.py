@@ -17,7 +17,6 @@ import pytest
 
 from fruitnerfpp_ros.cli.main import main
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.clustering.counter import centre_positions
 from fruitnerfpp_ros.core.export.ply import read_ply
 from test.accuracy_targets import assert_counted
 
@@ -63,8 +62,8 @@ def test_outputs_carry_the_same_ids(pipeline_run) -> None:
     sizes = np.bincount(labels, minlength=counts['total'] + 1)
     assert [int(s) for s in sizes[1:]] == [f['n_points'] for f in counts['fruits']]
     # a fruit's centre: the median of its points moved along their viewing directions (which the file keeps)
-    assert cloud.view_dir is not None
-    moved = centre_positions(cloud, ClusterConfig())
+    assert cloud.view_dir is not None and cloud.fruit_diameter_m
+    moved = cloud.xyz + ClusterConfig().centre_shift_diameters * cloud.fruit_diameter_m * cloud.view_dir
     for fruit in counts['fruits']:
         np.testing.assert_allclose(np.median(moved[labels == fruit['id']], axis=0), fruit['center'], atol=1e-5)
         assert fruit['diameter'] > 0
