@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
+import traceback
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
@@ -14,20 +16,27 @@ from rclpy.node import Node
 
 from fruitnerfpp_ros.errors import FruitNerfError
 
-__all__ = ['DRAIN_TIMEOUT_S', 'SIGNAL_SETTLE_S', 'spin_node']
+__all__ = ['DRAIN_TIMEOUT_S', 'SIGNAL_SETTLE_S', 'STUCK_EXIT_CODE', 'spin_node']
 
 DRAIN_TIMEOUT_S = 10.0
 SIGNAL_SETTLE_S = 2.0
+STUCK_EXIT_CODE = 3  # 2 is a bad parameter or input
 
 
 def spin_node(name: str, make_node: Callable[[], Node], make_executor: Callable[[], Executor],
-              args: list[str] | None = None, *, on_shutdown: Callable[[Node], None] | None = None) -> int:
+              args: list[str] | None = None, *, on_shutdown: Callable[[Node], None] | None = None,
+              drain_timeout_s: float = DRAIN_TIMEOUT_S) -> int:
     """Create the node, spin it until Ctrl-C / shutdown, and return the process exit code.
 
     Bad parameters or input (:class:`FruitNerfError`) end the process with one line on stderr and exit code 2;
     Ctrl-C / SIGINT at any point after ``rclpy.init`` is a clean stop (exit code 0).
     ``on_shutdown`` runs before the node is destroyed (e.g. to stop a training thread), after the callbacks still
-    running in the executor's threads have finished (at most ``DRAIN_TIMEOUT_S``).
+    running in the executor's threads have finished (at most ``drain_timeout_s``).
+
+    A callback still running after ``drain_timeout_s`` is a hang: its thread's stack goes to stderr, the node is
+    not destroyed under it (a use after free in rcl), ``on_shutdown`` gets another ``drain_timeout_s`` (it may wait
+    for a lock the callback holds), and the process ends at once with exit code ``STUCK_EXIT_CODE``: the
+    interpreter's exit would otherwise join the executor's threads and wait for the stuck one for ever.
     """
     rclpy.init(args=args)
     node = executor = None
@@ -50,18 +59,34 @@ def spin_node(name: str, make_node: Callable[[], Node], make_executor: Callable[
         if rclpy.ok():
             raise
     finally:
-        if executor is not None:
-            _drain(executor, DRAIN_TIMEOUT_S)
-        if node is not None:
+        stuck = _drain(executor, drain_timeout_s) if executor is not None else False
+        if node is not None and stuck:
+            if on_shutdown is not None:
+                _call_within(on_shutdown, node, drain_timeout_s)
+        elif node is not None:
             if on_shutdown is not None:
                 on_shutdown(node)
             node.destroy_node()
         rclpy.try_shutdown()
+        if stuck:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(STUCK_EXIT_CODE)
     return 0
 
 
-def _drain(executor: Executor, timeout_s: float) -> None:
-    """Stop ``executor`` and wait up to ``timeout_s`` for the callbacks its threads are still running.
+def _call_within(function: Callable[[Node], None], node: Node, timeout_s: float) -> None:
+    """Call ``function(node)`` in a daemon thread and wait at most ``timeout_s`` for it."""
+    thread = threading.Thread(target=function, args=(node,), name='on_shutdown', daemon=True)
+    thread.start()
+    thread.join(timeout_s)
+    if thread.is_alive():
+        print(f'the shutdown steps did not finish within {timeout_s:.0f} s', file=sys.stderr, flush=True)
+
+
+def _drain(executor: Executor, timeout_s: float) -> bool:
+    """Stop ``executor`` and wait up to ``timeout_s`` for the callbacks its threads are still running; returns
+    whether one still runs (its stack is printed).
 
     rclpy Jazzy's ``Executor.shutdown`` does not wait for them, and ``MultiThreadedExecutor`` keeps its threads in a
     ``ThreadPoolExecutor`` (``_executor``) that nothing shuts down: a node destroyed under a running callback is a
@@ -74,14 +99,20 @@ def _drain(executor: Executor, timeout_s: float) -> None:
     executor.shutdown(timeout_sec=timeout_s)
     pool = getattr(executor, '_executor', None)
     if not isinstance(pool, ThreadPoolExecutor):
-        return
+        return False
     pool.shutdown(wait=False, cancel_futures=True)
     prefix = f'{getattr(pool, "_thread_name_prefix", None)}_'
     workers = set(getattr(pool, '_threads', ())) | {t for t in threading.enumerate() if t.name.startswith(prefix)}
     for worker in workers - {threading.current_thread()}:
         worker.join(max(0.0, deadline - time.monotonic()))
-    if any(worker.is_alive() for worker in workers):
-        print(f'a callback still runs after {timeout_s:.0f} s; destroying the node anyway', file=sys.stderr)
+    stuck = sorted((w for w in workers if w.is_alive()), key=lambda w: w.name)
+    if stuck:
+        frames = sys._current_frames()
+        where = ''.join(f'{w.name}:\n' + ''.join(traceback.format_stack(frames[w.ident]))
+                        for w in stuck if w.ident in frames)
+        print(f'a callback still runs after {timeout_s:.0f} s; stopping without it\n{where}', file=sys.stderr,
+              flush=True)
+    return bool(stuck)
 
 
 def _await_signal_handling(timeout_s: float) -> None:

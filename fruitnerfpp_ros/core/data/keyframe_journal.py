@@ -11,6 +11,7 @@ Line format: ``{"index": i, "frame": <transforms.json frame>, "intrinsics": <glo
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from pathlib import Path
@@ -52,7 +53,10 @@ def append_entry(directory: Path, entry: JournalEntry) -> None:
         try:
             written = 0
             while written < len(data):  # unbuffered: a failed write leaves nothing queued to flush later
-                written += os.write(fd, data[written:])
+                step = os.write(fd, data[written:])
+                if step == 0:  # no progress and no error: never loop on it
+                    raise OSError(errno.EIO, 'the journal write made no progress')
+                written += step
         except BaseException:
             os.ftruncate(fd, start)
             raise

@@ -50,6 +50,25 @@ def test_a_failed_write_stores_nothing_and_keeps_what_was_stored(tmp_path: Path,
     assert [f.stamp_ns for f in KeyframeStore(tmp_path / 'kf').frames] == [0, 1, 2, 3]
 
 
+def test_a_journal_write_that_makes_no_progress_is_an_error_not_a_hang(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``os.write`` may return fewer bytes than asked; a return of 0 made the append loop for ever."""
+    import fruitnerfpp_ros.core.data.keyframe_journal as keyframe_journal
+    store = KeyframeStore(tmp_path / 'kf')
+    store.offer(_kf(0))
+    journal = (tmp_path / 'kf' / JOURNAL_NAME).read_bytes()
+    real_write = os.write
+
+    def short_then_none(fd: int, data: bytes) -> int:
+        return real_write(fd, data[:7]) if len(data) > 40 else 0
+    monkeypatch.setattr(keyframe_journal.os, 'write', short_then_none)
+    with pytest.raises(DatasetError, match='keyframe 1 not stored'):
+        store.offer(_kf(1))
+    monkeypatch.undo()
+    assert (tmp_path / 'kf' / JOURNAL_NAME).read_bytes() == journal  # the partial line was cut off again
+    assert store.offer(_kf(1)) is KeyframeDecision.ACCEPTED and len(KeyframeStore(tmp_path / 'kf')) == 2
+
+
 def test_a_kill_between_index_writes_loses_no_keyframe(tmp_path: Path) -> None:
     store = KeyframeStore(tmp_path / 'kf', index_every_frame_below=3, index_period_s=1e9)
     for i in range(5):
