@@ -83,11 +83,11 @@ def _signed(value: float) -> str:
 
 def cost_table(suite: SuiteResult) -> str:
     """Per scene: wall seconds of each step (:data:`TIME_KEYS`: synth, fallback masks, bag keyframes, training's
-    preparation, the three training stages, held-out evaluation, checkpoint writes, export, count, tracking, whole
-    scene) and peak memory (process RSS; CUDA peak allocation on the GPU)."""
+    preparation, the three training stages, held-out evaluation, checkpoint writes, export, count, ours from the
+    data to the count, tracking, whole scene) and peak memory (process RSS; CUDA peak allocation on the GPU)."""
     header = ['scene', 'synth s', 'masks s', 'keyframes s', 'prepare s', 'geometry s', 'semantic s', 'instance s',
-              'held-out eval s', 'checkpoints s', 'export s', 'count s', 'tracking s', 'total s', 'peak RSS MiB',
-              'CUDA MiB']
+              'held-out eval s', 'checkpoints s', 'export s', 'count s', 'ours s', 'tracking s', 'total s',
+              'peak RSS MiB', 'CUDA MiB']
     rows = [[s.name, *(_num(s.times_s.get(k), 1) for k in TIME_KEYS), _num(s.peak_rss_mb, 0),
              _num(s.cuda_max_allocated_mb, 0)] for s in suite.scenes]
     return _table(header, rows, 'l' + 'r' * (len(header) - 1))
@@ -115,6 +115,12 @@ def summary_lines(suite: SuiteResult) -> list[str]:
         return lines
     lines.append(f'- total time: {_num(suite.total_s, 0)} s ({_num(suite.total_s / 60, 1)} min), '
                  f'{suite.jobs} scene(s) at once')
+    timed = [(s.times_s['ours'], s.times_s.get('total', math.nan), s.name) for s in suite.scenes
+             if math.isfinite(s.times_s.get('ours', math.nan))]
+    if timed:
+        ours, total, name = max(timed)
+        lines.append(f'- slowest count, data to count: {_num(ours, 0)} s ({name}; {_num(total, 0)} s with the '
+                     'scene generation and the peer)')
     return lines
 
 

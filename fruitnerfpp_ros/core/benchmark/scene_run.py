@@ -279,7 +279,8 @@ def _score_scene(job: SceneJob, scene_dir: Path, data_dir: Path, counted_dir: Pa
     from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
     pipeline = None
     try:
-        pipeline, counted_dir = _count_ours(job, scene_dir, data_dir, record, config)
+        with record.timed('ours'):
+            pipeline, counted_dir = _count_ours(job, scene_dir, data_dir, record, config)
         _pipeline_figures(pipeline, record)
     except Exception as err:  # noqa: BLE001 - reported in the scene's row; the peer still runs
         record.fail('ours', err)

@@ -13,14 +13,14 @@ from fruitnerfpp_ros.core.benchmark.report import (LOG_TITLE, append_log_section
 from fruitnerfpp_ros.core.benchmark.result import CounterScore, SceneResult, SuiteResult
 
 
-def _scene(name: str, f1: float, peer_f1: float, **values: object) -> SceneResult:
+def _scene(name: str, f1: float, peer_f1: float, ours_s: float = 118.0, **values: object) -> SceneResult:
     return SceneResult(name, covers=f'axis of {name}', ours=CounterScore(10, 9, 0.9, f1, f1),
                        peer=CounterScore(12, 8, 0.7, peer_f1, peer_f1), gt_count=11, gt_seen=10, n_views=48,
                        psnr_db=21.5, semantic_iou=0.61, instance_acc=0.83, box_size_m=(2.0, 2.5, 3.0), voxel_mm=9.4,
                        diameter_m=0.075, gt_diameter_m=0.072,
                        times_s={'synth': 2.0, 'prepare': 3.5, 'geometry': 60.0, 'semantic': 30.0, 'instance': 20.0,
-                                'evaluate': 0.75, 'checkpoint': 0.25, 'export': 5.0, 'count': 1.5, 'tracking': 0.4,
-                                'total': 121.0},
+                                'evaluate': 0.75, 'checkpoint': 0.25, 'export': 5.0, 'count': 1.5, 'ours': ours_s,
+                                'tracking': 0.4, 'total': 121.0},
                        peak_rss_mb=1500.0, picture=f'{name}/count.png', **values)  # type: ignore[arg-type]
 
 
@@ -28,7 +28,7 @@ def _scene(name: str, f1: float, peer_f1: float, **values: object) -> SceneResul
 def suite() -> SuiteResult:
     failed = SceneResult('broken', covers='a bad scene', error="scene: SynthError: unknown fruit type 'banana'",
                          times_s={'total': 0.2})
-    return SuiteResult('quick', (_scene('a', 0.90, 0.80), _scene('b', 0.60, 0.95, via_bag=True), failed), 'cpu',
+    return SuiteResult('quick', (_scene('a', 0.90, 0.80), _scene('b', 0.60, 0.95, 119.5, via_bag=True), failed), 'cpu',
                        'gt', 'cpu', 2, '', '2026-12-01T12:00:00Z', 600.0,
                        'fruitnerfpp bench accuracy --suite quick --out out --jobs 2', 'abc1234')
 
@@ -55,9 +55,10 @@ def test_markdown_tables(suite: SuiteResult) -> None:
     assert '- FruitNeRF++ (ours): mean F1 **0.750**, worst 0.600 (b) over 2 of 3 scenes' in text
     assert '- tracking peer: mean F1 **0.875**, worst 0.800 (a) over 2 of 3 scenes' in text
     assert '- failed scenes: 1: broken' in text and '- total time: 600 s (10.0 min), 2 scene(s) at once' in text
+    assert '- slowest count, data to count: 120 s (b; 121 s with the scene generation and the peer)' in text
     time_row = next(line for line in text.splitlines() if line.startswith('| a | 2.0 |'))
-    assert time_row == ('| a | 2.0 | – | – | 3.5 | 60.0 | 30.0 | 20.0 | 0.8 | 0.2 | 5.0 | 1.5 | 0.4 | 121.0 | 1500 '
-                        '| – |')
+    assert time_row == ('| a | 2.0 | – | – | 3.5 | 60.0 | 30.0 | 20.0 | 0.8 | 0.2 | 5.0 | 1.5 | 118.0 | 0.4 | 121.0 '
+                        '| 1500 | – |')
     assert '| b | rosbag2 + replay | axis of b |' in text and '### Errors' in text
 
 

@@ -51,6 +51,8 @@ def test_one_micro_scene_end_to_end_and_a_failing_one(tmp_path: Path) -> None:
     assert 0.05 < micro.gt_diameter_m < 0.1 and micro.diameter_m > 0 and micro.peak_rss_mb > 100
     assert set(TIME_KEYS) - {'segment', 'keyframes'} <= set(micro.times_s)  # every step of a dataset scene
     assert micro.times_s['prepare'] > 0.0 and micro.times_s['evaluate'] > 0.0
+    steps = sum(micro.times_s[k] for k in ('prepare', 'geometry', 'semantic', 'instance', 'export', 'count'))
+    assert steps < micro.times_s['ours'] < micro.times_s['total'] - micro.times_s['synth']  # ours: data to count
     assert micro.picture == 'micro/count.png' and (tmp_path / micro.picture).stat().st_size > 1000
     scene_dir = tmp_path / 'micro'
     assert (scene_dir / 'data' / 'gt_fruits.json').is_file() and (scene_dir / 'run' / 'counts.json').is_file()
