@@ -11,7 +11,8 @@ import torch
 
 from fruitnerfpp_ros.core.data.bounds import aabb_from_cameras
 from fruitnerfpp_ros.core.data.dataset import load_dataset
-from fruitnerfpp_ros.core.data.scene_scale import ScaleConfig, estimate_scene_scale, largest_eigenvalue_sym3
+from fruitnerfpp_ros.core.data.scene_scale import (ScaleConfig, dilate_square, estimate_scene_scale,
+                                                   largest_eigenvalue_sym3)
 from fruitnerfpp_ros.errors import ConfigError
 from test.core.training.stand_in_scene import make_sphere_scene
 
@@ -159,3 +160,11 @@ def test_the_view_spread_needs_no_batched_solver(tiny_apple_dataset: Path, monke
     scale = estimate_scene_scale(dataset, _search_box(dataset))
     assert scale.source == 'masks' and scale.n_fruit_voxels == expected.n_fruit_voxels
     np.testing.assert_allclose(scale.fruit_region, expected.fruit_region)
+
+
+@pytest.mark.parametrize('radius', [1, 4, 17])
+def test_the_row_and_column_dilation_is_the_square_max_pool(radius: int) -> None:
+    masks = (torch.rand(3, 1, 45, 61, generator=torch.Generator().manual_seed(radius)) > 0.97).float()
+    masks[0, 0, 0, 0] = masks[1, 0, -1, -1] = 1.0  # the borders too
+    square = torch.nn.functional.max_pool2d(masks, 2 * radius + 1, stride=1, padding=radius)
+    assert torch.equal(dilate_square(masks, radius), square) and square.sum() > masks.sum()
