@@ -77,10 +77,14 @@ class MergeConfig:
     """Smallest diameter used for matching (a fruit seen in a few points gets a tiny diameter)."""
     max_lateral_m: float = 1.5
     """Fruits further than this from the row's centre line are left out (not on this row's trees)."""
+    piece_max_diameter_ratio: float = 1.25
+    """A segment's unpaired fruit within the match reach of both copies of a pair is a piece of that fruit (the
+    segment split it) when the neighbour's copy is one fruit's size: at most this many times the segment's median
+    fruit diameter. A larger copy may be two fruits the neighbour merged, and the fruit stays."""
 
     def __post_init__(self) -> None:
         _positive('merge', match_diameters=self.match_diameters, min_diameter_m=self.min_diameter_m,
-                  max_lateral_m=self.max_lateral_m)
+                  max_lateral_m=self.max_lateral_m, piece_max_diameter_ratio=self.piece_max_diameter_ratio)
 
 
 @dataclass(frozen=True)

@@ -4,8 +4,9 @@ Each segment's fruits count within its trusted stretch (:class:`~.segments.Segme
 stretches overlap around their cut; a fruit there (or within the match reach of the overlap's ends) is usually
 counted by both. Such pairs are matched one-to-one by 3D distance (Hungarian; at most ``match_diameters`` fruit
 diameters apart) and kept once: the copy of the segment whose own stretch holds the pair (it saw the fruit from
-more central views). A fruit only one of them counted stays. Instance embeddings are not used for matching: each
-segment trains its own instance field, so the embeddings of two segments live in unrelated spaces.
+more central views). A fruit only one of them counted stays; a piece of a paired fruit (a segment that split
+the fruit in two) does not. Instance embeddings are not used for matching: each segment trains its own instance
+field, so the embeddings of two segments live in unrelated spaces.
 """
 
 from __future__ import annotations
@@ -79,6 +80,34 @@ def _pairs(a: np.ndarray, da: np.ndarray, b: np.ndarray, db: np.ndarray, config:
     return np.stack([rows[ok], cols[ok]], axis=1)
 
 
+def _fragments(own: SegmentFruits, window: np.ndarray, paired: np.ndarray, other_centers: np.ndarray,
+               other_diameters: np.ndarray, config: MergeConfig) -> np.ndarray:
+    """Positions (into ``window``) of ``own``'s unpaired fruits that are a piece of a paired fruit.
+
+    A segment that split a fruit in two counts both halves; its neighbour counts the fruit once and the one-to-one
+    match pairs it with one half. The other half lies within the match reach of both copies of the pair: two
+    separate fruits cannot have centres closer than a fruit diameter, so it is the same fruit (it is dropped) -
+    unless the neighbour's copy is larger than one fruit (``piece_max_diameter_ratio`` median diameters): then the
+    neighbour may have merged two fruits into it. ``paired``: positions (into ``window``) of own's paired fruits;
+    ``other_*``: their partners in the neighbour.
+    """
+    loose = np.setdiff1d(np.arange(len(window)), paired)
+    if len(loose) == 0 or len(paired) == 0:
+        return np.zeros(0, np.int64)
+    centers, diameters = own.centers[window[loose]], own.diameters[window[loose]]
+
+    def within_reach(to: np.ndarray, to_diameters: np.ndarray) -> np.ndarray:
+        dist = np.linalg.norm(centers[:, None, :] - to[None, :, :], axis=2)
+        reach = config.match_diameters * np.maximum(np.maximum(diameters[:, None], to_diameters[None, :]),
+                                                    config.min_diameter_m)
+        return dist <= reach
+    own_paired = window[paired]
+    one_fruit = other_diameters <= config.piece_max_diameter_ratio * float(np.median(own.diameters))
+    piece = within_reach(own.centers[own_paired], own.diameters[own_paired]) & \
+        within_reach(other_centers, other_diameters) & one_fruit[None, :]
+    return loose[piece.any(axis=1)]
+
+
 def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequence[SegmentFruits | None],
                    config: MergeConfig = MergeConfig()) -> RowFruits:
     """Join the segments' counts (None: the segment has no count, e.g. it failed) into the row's fruits."""
@@ -112,13 +141,20 @@ def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequenc
             continue
         ia = np.flatnonzero(kept[k] & (along[k] >= lo) & (along[k] <= hi))
         ib = np.flatnonzero(kept[k_next] & (along[k_next] >= lo) & (along[k_next] <= hi))
-        for pa, pb in _pairs(a.centers[ia], a.diameters[ia], b.centers[ib], b.diameters[ib], config):
+        pairs = _pairs(a.centers[ia], a.diameters[ia], b.centers[ib], b.diameters[ib], config)
+        fragments = [ia[_fragments(a, ia, pairs[:, 0], b.centers[ib[pairs[:, 1]]], b.diameters[ib[pairs[:, 1]]],
+                                   config)],
+                     ib[_fragments(b, ib, pairs[:, 1], a.centers[ia[pairs[:, 0]]], a.diameters[ia[pairs[:, 0]]],
+                                   config)]]
+        for pa, pb in pairs:
             i, j = ia[pa], ib[pb]
             middle = 0.5 * (along[k][i] + along[k_next][j])
             if middle <= a_seg.core[1]:     # keep the copy of the segment whose own stretch holds the pair
                 kept[k_next][j], matched[k][i] = False, True
             else:
                 kept[k][i], matched[k_next][j] = False, True
+        kept[k][fragments[0]] = False
+        kept[k_next][fragments[1]] = False
     parts = [(k, np.flatnonzero(kept[k])) for k in order]
     centers = np.concatenate([done[k].centers[i] for k, i in parts]) if parts else np.zeros((0, 3))
     s_all = np.concatenate([along[k][i] for k, i in parts]) if parts else np.zeros(0)

@@ -64,3 +64,33 @@ def test_the_copies_of_a_fruit_at_the_edge_of_the_overlap_are_counted_once() -> 
     assert len(row) == 2 and row.matched.all()
     far = merge_segments(FRAME, SEGMENTS, [a, _fruits(1, [[1.45, 0.0, 1.0]])])  # beyond the reach: another fruit
     assert len(far) == 3 and not far.matched.any()
+
+
+def test_a_fruit_one_segment_split_in_two_is_counted_once() -> None:
+    """a counts two halves of the fruit at the cut (3 cm apart), b counts it once: the pair takes one half, and the
+    other half, within a diameter of both copies, is the same fruit. Before, it stayed: a double across the cut."""
+    a = _fruits(0, [[0.99, 0.0, 1.0], [1.02, 0.01, 1.01], [0.4, 0.0, 1.0]])
+    b = _fruits(1, [[1.005, 0.0, 1.0], [1.8, 0.0, 1.0]])
+    row = merge_segments(FRAME, SEGMENTS, [a, b])
+    assert len(row) == 3 and np.allclose(row.along[[0, 2]], [0.4, 1.8])
+    assert 0.99 <= row.along[1] <= 1.02 and row.matched.tolist() == [False, True, False]
+    mirrored = merge_segments(FRAME, SEGMENTS, [_fruits(0, [[1.005, 0.0, 1.0]]), _fruits(1, a.centers[:2].tolist())])
+    assert len(mirrored) == 1 and mirrored.matched.all()
+
+
+def test_a_touching_fruit_the_neighbour_missed_still_counts() -> None:
+    """Two fruits' centres are at least a diameter apart: a's second fruit, 7.5 cm (over one 7 cm diameter) from
+    the pair, is not a piece of it, though b missed it."""
+    a = _fruits(0, [[0.98, 0.0, 1.0], [1.055, 0.0, 1.0]])
+    b = _fruits(1, [[0.985, 0.01, 1.0]])
+    row = merge_segments(FRAME, SEGMENTS, [a, b])
+    assert len(row) == 2 and row.matched.sum() == 1
+
+
+def test_a_neighbours_copy_larger_than_a_fruit_leaves_both_fruits() -> None:
+    """b's copy is 1.5 fruit diameters across: b may have merged a's two fruits (7 cm apart) into it."""
+    a = _fruits(0, [[0.99, 0.0, 1.0], [1.05, 0.01, 1.01], [0.4, 0.0, 1.0]])
+    b = _fruits(1, [[1.02, 0.0, 1.0], [1.8, 0.0, 1.0]])
+    b = b._replace(diameters=np.array([0.105, 0.07]))
+    assert len(merge_segments(FRAME, SEGMENTS, [a, b])) == 4
+    assert len(merge_segments(FRAME, SEGMENTS, [a, b._replace(diameters=np.array([0.07, 0.07]))])) == 3
