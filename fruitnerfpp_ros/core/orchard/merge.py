@@ -68,43 +68,43 @@ class RowFruits(NamedTuple):
         return len(self.centers)
 
 
+def _distances(a: np.ndarray, da: np.ndarray, b: np.ndarray, db: np.ndarray, config: MergeConfig
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """[A, B] distances of the centres a, b (diameters da, db) and the match reach of each pair: ``match_diameters``
+    times the larger diameter (at least ``min_diameter_m``)."""
+    dist = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
+    return dist, config.match_diameters * np.maximum(np.maximum(da[:, None], db[None, :]), config.min_diameter_m)
+
+
 def _pairs(a: np.ndarray, da: np.ndarray, b: np.ndarray, db: np.ndarray, config: MergeConfig) -> np.ndarray:
     """[P, 2] one-to-one index pairs (into a, b) of centres closer than the match reach."""
     if len(a) == 0 or len(b) == 0:
         return np.zeros((0, 2), np.int64)
-    dist = np.linalg.norm(a[:, None, :] - b[None, :, :], axis=2)
-    reach = config.match_diameters * np.maximum(np.maximum(da[:, None], db[None, :]), config.min_diameter_m)
+    dist, reach = _distances(a, da, b, db, config)
     cost = np.where(dist <= reach, dist, 1e6)
     rows, cols = linear_sum_assignment(cost)
     ok = cost[rows, cols] < 1e6
     return np.stack([rows[ok], cols[ok]], axis=1)
 
 
-def _fragments(own: SegmentFruits, window: np.ndarray, paired: np.ndarray, other_centers: np.ndarray,
-               other_diameters: np.ndarray, config: MergeConfig) -> np.ndarray:
-    """Positions (into ``window``) of ``own``'s unpaired fruits that are a piece of a paired fruit.
+def _pieces(own: SegmentFruits, window: np.ndarray, paired: np.ndarray, other: SegmentFruits,
+            partners: np.ndarray, config: MergeConfig) -> np.ndarray:
+    """Indices of ``own``'s fruits in ``window`` (indices), not in ``paired``, that are a piece of a paired fruit.
 
     A segment that split a fruit in two counts both halves; its neighbour counts the fruit once and the one-to-one
     match pairs it with one half. The other half lies within the match reach of both copies of the pair: two
     separate fruits cannot have centres closer than a fruit diameter, so it is the same fruit (it is dropped) -
     unless the neighbour's copy is larger than one fruit (``piece_max_diameter_ratio`` median diameters): then the
-    neighbour may have merged two fruits into it. ``paired``: positions (into ``window``) of own's paired fruits;
-    ``other_*``: their partners in the neighbour.
+    neighbour may have merged two fruits into it. ``paired[i]`` (own) and ``partners[i]`` (other) are pair i.
     """
-    loose = np.setdiff1d(np.arange(len(window)), paired)
+    loose = np.setdiff1d(window, paired)
     if len(loose) == 0 or len(paired) == 0:
         return np.zeros(0, np.int64)
-    centers, diameters = own.centers[window[loose]], own.diameters[window[loose]]
-
-    def within_reach(to: np.ndarray, to_diameters: np.ndarray) -> np.ndarray:
-        dist = np.linalg.norm(centers[:, None, :] - to[None, :, :], axis=2)
-        reach = config.match_diameters * np.maximum(np.maximum(diameters[:, None], to_diameters[None, :]),
-                                                    config.min_diameter_m)
-        return dist <= reach
-    own_paired = window[paired]
-    one_fruit = other_diameters <= config.piece_max_diameter_ratio * float(np.median(own.diameters))
-    piece = within_reach(own.centers[own_paired], own.diameters[own_paired]) & \
-        within_reach(other_centers, other_diameters) & one_fruit[None, :]
+    piece = other.diameters[partners] <= config.piece_max_diameter_ratio * float(np.median(own.diameters))
+    for centers, diameters in ((own.centers[paired], own.diameters[paired]),
+                               (other.centers[partners], other.diameters[partners])):
+        dist, reach = _distances(own.centers[loose], own.diameters[loose], centers, diameters, config)
+        piece = piece & (dist <= reach)
     return loose[piece.any(axis=1)]
 
 
@@ -142,19 +142,16 @@ def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequenc
         ia = np.flatnonzero(kept[k] & (along[k] >= lo) & (along[k] <= hi))
         ib = np.flatnonzero(kept[k_next] & (along[k_next] >= lo) & (along[k_next] <= hi))
         pairs = _pairs(a.centers[ia], a.diameters[ia], b.centers[ib], b.diameters[ib], config)
-        fragments = [ia[_fragments(a, ia, pairs[:, 0], b.centers[ib[pairs[:, 1]]], b.diameters[ib[pairs[:, 1]]],
-                                   config)],
-                     ib[_fragments(b, ib, pairs[:, 1], a.centers[ia[pairs[:, 0]]], a.diameters[ia[pairs[:, 0]]],
-                                   config)]]
-        for pa, pb in pairs:
-            i, j = ia[pa], ib[pb]
+        pa, pb = ia[pairs[:, 0]], ib[pairs[:, 1]]
+        pieces_a, pieces_b = _pieces(a, ia, pa, b, pb, config), _pieces(b, ib, pb, a, pa, config)
+        for i, j in zip(pa, pb):
             middle = 0.5 * (along[k][i] + along[k_next][j])
             if middle <= a_seg.core[1]:     # keep the copy of the segment whose own stretch holds the pair
                 kept[k_next][j], matched[k][i] = False, True
             else:
                 kept[k][i], matched[k_next][j] = False, True
-        kept[k][fragments[0]] = False
-        kept[k_next][fragments[1]] = False
+        kept[k][pieces_a] = False
+        kept[k_next][pieces_b] = False
     parts = [(k, np.flatnonzero(kept[k])) for k in order]
     centers = np.concatenate([done[k].centers[i] for k, i in parts]) if parts else np.zeros((0, 3))
     s_all = np.concatenate([along[k][i] for k, i in parts]) if parts else np.zeros(0)
