@@ -95,7 +95,9 @@ def _pieces(own: SegmentFruits, window: np.ndarray, paired: np.ndarray, other: S
     match pairs it with one half. The other half lies within the match reach of both copies of the pair: two
     separate fruits cannot have centres closer than a fruit diameter, so it is the same fruit (it is dropped) -
     unless the neighbour's copy is larger than one fruit (``piece_max_diameter_ratio`` median diameters): then the
-    neighbour may have merged two fruits into it. ``paired[i]`` (own) and ``partners[i]`` (other) are pair i.
+    neighbour may have merged two fruits into it; or unless the neighbour counted a fruit of its own there (trusted
+    or not, paired with nothing): then both saw a second fruit (a touching fruit beyond the neighbour's trusted
+    stretch). ``paired[i]`` (own) and ``partners[i]`` (other) are pair i.
     """
     loose = np.setdiff1d(window, paired)
     if len(loose) == 0 or len(paired) == 0:
@@ -105,6 +107,11 @@ def _pieces(own: SegmentFruits, window: np.ndarray, paired: np.ndarray, other: S
                                (other.centers[partners], other.diameters[partners])):
         dist, reach = _distances(own.centers[loose], own.diameters[loose], centers, diameters, config)
         piece = piece & (dist <= reach)
+    unpaired = np.setdiff1d(np.arange(len(other.centers)), partners)
+    if len(unpaired):
+        dist, reach = _distances(own.centers[loose], own.diameters[loose], other.centers[unpaired],
+                                 other.diameters[unpaired], config)
+        piece = piece & ~(dist <= reach).any(axis=1, keepdims=True)
     return loose[piece.any(axis=1)]
 
 

@@ -87,6 +87,18 @@ def test_a_touching_fruit_the_neighbour_missed_still_counts() -> None:
     assert len(row) == 2 and row.matched.sum() == 1
 
 
+def test_a_touching_fruit_beyond_the_neighbours_trusted_stretch_still_counts() -> None:
+    """Two touching fruits (7 and 6 cm, centres 6.5 cm apart) at the end of the overlap: both segments count the
+    first, a pair; the second lies beyond a's trusted stretch (1.3), so only b's copy is trusted. a's own, untrusted
+    copy says a saw a second fruit there: b's is no piece of the pair (the live row's perfect count lost it so)."""
+    a = _fruits(0, [[1.27, 0.0, 1.0], [1.335, 0.0, 1.0]])
+    a = a._replace(diameters=np.array([0.07, 0.06]))
+    b = a._replace(segment=1)
+    row = merge_segments(FRAME, SEGMENTS, [a, b])
+    assert np.allclose(row.along, [1.27, 1.335]) and row.matched.tolist() == [True, False]
+    assert row.dropped_untrusted == 1
+
+
 def test_a_neighbours_copy_larger_than_a_fruit_leaves_both_fruits() -> None:
     """b's copy is 1.5 fruit diameters across: b may have merged a's two fruits (7 cm apart) into it."""
     a = _fruits(0, [[0.99, 0.0, 1.0], [1.05, 0.01, 1.01], [0.4, 0.0, 1.0]])
