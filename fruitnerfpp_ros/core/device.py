@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import os
+
 import torch
 
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['resolve_device', 'use_cpu_threads']
+__all__ = ['resolve_device', 'cpu_thread_count', 'use_cpu_threads']
 
 
 def resolve_device(name: str = 'auto') -> torch.device:
@@ -26,11 +28,37 @@ def resolve_device(name: str = 'auto') -> torch.device:
     raise ConfigError(f'unknown device {name!r}; expected auto, cpu, cuda or cuda:N')
 
 
-def use_cpu_threads(count: int, device: str = 'auto') -> None:
-    """Set torch's CPU thread count to ``count`` when work will run on the CPU (``count`` 0: leave it).
+def cpu_thread_count(count: int, share: int = 1) -> int:
+    """The torch CPU threads for ``TrainConfig.cpu_threads`` = ``count``.
 
-    For the owners of a process only (CLI commands, nodes): the library never changes process-wide settings;
-    ``TrainConfig.cpu_threads`` is the value they pass.
+    ``count`` > 0: that many. 0 (auto): ``OMP_NUM_THREADS`` when set (a parent that runs several jobs sets it for
+    each), else the cores this process may run on divided among the ``share`` jobs its caller runs at once (at
+    least one).
+
+    Raises:
+        ConfigError: ``count`` < 0, ``share`` < 1 or an ``OMP_NUM_THREADS`` that is no positive integer.
     """
-    if count > 0 and resolve_device(device).type == 'cpu':
-        torch.set_num_threads(count)
+    if count < 0 or share < 1:
+        raise ConfigError(f'cpu_threads must be >= 0 and the jobs sharing the cores >= 1 (got {count}, {share})')
+    if count > 0:
+        return count
+    env = os.environ.get('OMP_NUM_THREADS', '').strip()
+    if env:
+        if not env.isdigit() or int(env) < 1:
+            raise ConfigError(f'OMP_NUM_THREADS={env!r} is not a positive integer')
+        return int(env)
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else (os.cpu_count() or 1)
+    return max(1, cores // share)
+
+
+def use_cpu_threads(count: int, device: str = 'auto', share: int = 1) -> int:
+    """Set torch's CPU thread count to :func:`cpu_thread_count` (``count``, ``share``) when work will run on the
+    CPU; returns the count (also on CUDA, where nothing is set).
+
+    For the owners of a process only (CLI commands, nodes, a benchmark's scene process): the library never changes
+    process-wide settings; ``TrainConfig.cpu_threads`` is the value they pass.
+    """
+    threads = cpu_thread_count(count, share)
+    if resolve_device(device).type == 'cpu':
+        torch.set_num_threads(threads)
+    return threads

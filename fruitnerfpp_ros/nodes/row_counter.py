@@ -139,7 +139,8 @@ class RowCounter:
 
     def _work(self) -> None:
         from fruitnerfpp_ros.core.device import use_cpu_threads
-        use_cpu_threads(self.configs.train.cpu_threads, self.settings.device)  # the node owns its process
+        use_cpu_threads(self.configs.train.cpu_threads or 1, self.settings.device)  # the node owns its process;
+        # auto (0) is one thread: the robot's other processes share the cores
         while not self._stop.is_set():
             with self._lock:
                 while not self._queue and not self._stop.is_set():

@@ -204,7 +204,8 @@ class TrainingRuns:
             configs = pipeline_configs(settings)
             for warning in configs.warnings:
                 self._log(LogLevel.WARN, warning)
-            use_cpu_threads(configs.train.cpu_threads, settings.device)  # the node owns its process
+            use_cpu_threads(configs.train.cpu_threads or 1, settings.device)  # the node owns its process;
+            # auto (0) is one thread: the robot's other processes share the cores
             if resume:  # a kill or a full disk may have cut the last metrics line, which resuming reads again
                 trim_torn_line(train_dir / 'metrics.jsonl')
             with partition_pool(configs.cluster.n_jobs) as pool:  # workers live for this run only

@@ -119,7 +119,7 @@ def run_suite(suite: str, scenes: Sequence[SuiteScene], out_dir: str | Path, opt
     started = time.perf_counter()
     jobs = [SceneJob(scene, out_dir, options.masks, options.device, options.preset, options.train_config,
                      options.export_config, options.cluster_config, options.config_file, bag_runner,
-                     options.peer_beside_ours)
+                     options.peer_beside_ours, cpu_share=max(1, min(options.jobs, len(scenes))))
             for scene in scenes]
     done: dict[str, SceneResult] = {}
     commit = git_commit()

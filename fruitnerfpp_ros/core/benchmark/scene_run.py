@@ -99,6 +99,8 @@ class SceneJob:
     peer_beside_ours: bool | None = None
     """Run the tracking peer in a process of its own while ours trains (dataset scenes); None: on a CUDA device, where
     ours leaves the CPU cores idle (on the CPU suites both would share the scene's one core and its times)."""
+    cpu_share: int = 1
+    """Scenes the suite runs at once: a ``cpu_threads`` of 0 (auto) gives each the cores divided among them."""
 
 
 @dataclass
@@ -229,7 +231,9 @@ def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
     from fruitnerfpp_ros.core.synthetic import generate_orchard
 
     config = job.scene.synth_config(job.device)
-    use_cpu_threads(job.train_config.cpu_threads, job.device)  # this process is the scene's alone
+    # this process is the scene's alone; its bag replay resolves an auto thread count from OMP_NUM_THREADS
+    threads = use_cpu_threads(job.train_config.cpu_threads, job.device, share=job.cpu_share)
+    os.environ['OMP_NUM_THREADS'] = str(threads)
     data_dir = scene_dir / 'data'
     with record.timed('synth'):
         synth = generate_orchard(config, data_dir, bag=scene_dir / 'bag' if job.scene.via_bag else None,
@@ -318,8 +322,9 @@ def _memory(record: _Record) -> None:
 def run_scene(job: SceneJob) -> SceneResult:
     """Run one scene end to end and return what it measured (failures recorded, not raised).
 
-    Meant for a process of its own (peak memory is the process's): it sets torch's CPU threads, redirects the
-    process's output to ``scene.log`` while it runs, and replaces ``out_dir/<scene>``.
+    Meant for a process of its own (peak memory is the process's): it sets torch's CPU threads (and
+    ``OMP_NUM_THREADS`` for its bag replay: an auto count is the cores shared among ``job.cpu_share`` scenes),
+    redirects the process's output to ``scene.log`` while it runs, and replaces ``out_dir/<scene>``.
     """
     started = time.perf_counter()
     scene_dir = Path(job.out_dir) / job.scene.name

@@ -326,9 +326,13 @@ class TrainConfig:
     eval_max_views: int = 8
     """Held-out views rendered for the stage-end evaluation (the first n)."""
     cpu_threads: int = 1
-    """torch CPU threads the callers (CLI, node) set before training on the CPU (0 = keep torch's setting); the
-    library itself never changes process-wide settings. One thread is the fast choice for these small batches: with
-    more, OpenMP barriers collapse when other processes share the cores."""
+    """torch CPU threads the callers (CLI, benchmark scene, node) set before training on the CPU; the library itself
+    never changes process-wide settings. 0 (the ``cpu`` preset's): ``OMP_NUM_THREADS`` when set, else the cores the
+    process may run on divided among the jobs its caller runs at once (``bench accuracy --jobs 2`` on 2 cores: one
+    each; :func:`~fruitnerfpp_ros.core.device.cpu_thread_count`); the ``fruit_counter`` node takes 0 as one thread
+    (it shares the robot's cores). One thread per process is the fast choice when processes share the cores (with
+    more, OpenMP barriers collapse); a run alone on 2 cores trains 1.5x faster with both (apple_hemi_200's first 400
+    / 200 geometry / semantic steps: 121 / 51 s on one thread, 80 / 34 s on two; docs/results/accuracy_suite.md)."""
 
     def __post_init__(self) -> None:
         for name in ('geometry', 'semantic', 'instance'):

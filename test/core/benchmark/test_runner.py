@@ -102,6 +102,19 @@ def test_the_report_holds_every_finished_scene_while_the_suite_runs(tmp_path: Pa
     assert final['pending'] == [] and len(final['scenes']) == 3
 
 
+def _reports_its_share(job: SceneJob) -> SceneResult:
+    return SceneResult(job.scene.name, str(job.cpu_share), times_s={'total': 0.0})
+
+
+def test_each_scene_knows_how_many_share_the_cores(tmp_path: Path) -> None:
+    """With ``cpu_threads`` 0 (the cpu preset) a scene takes the cores divided among the scenes run at once."""
+    two = [SuiteScene('a', {}, 'x'), SuiteScene('b', {}, 'y')]
+    assert [s.covers for s in run_suite('test', two, tmp_path, _options(jobs=2), scene_fn=_reports_its_share).scenes] \
+        == ['2', '2']
+    assert [s.covers for s in run_suite('test', two[:1], tmp_path, _options(jobs=2),
+                                        scene_fn=_reports_its_share).scenes] == ['1']   # one scene: alone
+
+
 def test_refuses_duplicates_and_bag_scenes_without_a_replay(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match='repeated: micro'):
         run_suite('test', [MICRO, MICRO], tmp_path, _options())
