@@ -31,21 +31,19 @@ def resolve_device(name: str = 'auto') -> torch.device:
 def cpu_thread_count(count: int, share: int = 1) -> int:
     """The torch CPU threads for ``TrainConfig.cpu_threads`` = ``count``.
 
-    ``count`` > 0: that many. 0 (auto): ``OMP_NUM_THREADS`` when set (a parent that runs several jobs sets it for
-    each), else the cores this process may run on divided among the ``share`` jobs its caller runs at once (at
-    least one).
+    ``count`` > 0: that many. 0 (auto): ``OMP_NUM_THREADS`` when it holds a positive count (a parent that runs
+    several jobs sets it for each; of a nested list such as ``4,2`` the first), else the cores this process may run
+    on divided among the ``share`` jobs its caller runs at once (at least one).
 
     Raises:
-        ConfigError: ``count`` < 0, ``share`` < 1 or an ``OMP_NUM_THREADS`` that is no positive integer.
+        ConfigError: ``count`` < 0 or ``share`` < 1.
     """
     if count < 0 or share < 1:
         raise ConfigError(f'cpu_threads must be >= 0 and the jobs sharing the cores >= 1 (got {count}, {share})')
     if count > 0:
         return count
-    env = os.environ.get('OMP_NUM_THREADS', '').strip()
-    if env:
-        if not env.isdigit() or int(env) < 1:
-            raise ConfigError(f'OMP_NUM_THREADS={env!r} is not a positive integer')
+    env = os.environ.get('OMP_NUM_THREADS', '').split(',')[0].strip()
+    if env.isdigit() and int(env) >= 1:
         return int(env)
     cores = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else (os.cpu_count() or 1)
     return max(1, cores // share)

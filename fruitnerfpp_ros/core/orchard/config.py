@@ -35,8 +35,9 @@ class SegmentConfig:
     diameters). Each fruit in the overlap of two trusted stretches is counted twice and must be paired; the pairs
     that fail (copies a fruit diameter or more apart, a fruit one side split) are the doubles across cuts. On three
     trained 5-tree rows (apple seeds 0 / 1, plum seed 2) 0.6 -> 0.2 gave row F1 0.954 / 0.944 / 0.899 -> 0.964 /
-    0.966 / 0.915 and doubles across cuts 1 / 3 / 3 -> 0 / 1 / 1; 0.1-0.3 alike, 0 lost true fruit that only the
-    neighbour had counted (docs/results/orchard_rows.md, session 30)."""
+    0.966 / 0.915 (0.964 / 0.971 / 0.921 with the merge's touching-fruit rule) and doubles across cuts 1 / 3 / 3 ->
+    0 / 1 / 1; 0.1-0.3 alike, 0 lost true fruit that only the neighbour had counted (docs/results/orchard_rows.md,
+    session 30)."""
     min_overlap_m: float = 0.4
     """A keyframe joins a segment when the stretch it sees overlaps the segment's grown stretch by at least this
     much (or the whole grown stretch)."""
