@@ -17,7 +17,6 @@ The params file is the node's (topics, pose source, world frame, preset) plus th
 from __future__ import annotations
 
 import argparse
-import os
 from pathlib import Path
 from typing import Any
 
@@ -99,9 +98,11 @@ def make_runner(args: argparse.Namespace, log: Any = print) -> tuple[Any, Any]:
             'process one after the other')
         return InProcessRunner(), None
     import torch
+
+    from fruitnerfpp_ros.core.device import available_cores
     if args.workers < 1:
         raise ConfigError(f'--workers must be >= 1, got {args.workers}')
-    cpus = args.cpus_per_worker or max(1, (os.cpu_count() or 1) // args.workers)
+    cpus = args.cpus_per_worker or max(1, available_cores() // args.workers)
     if args.ray_address:
         ray.init(address=args.ray_address, log_to_driver=True)
         gpus = 1 if ray.cluster_resources().get('GPU', 0) > 0 else 0

@@ -8,7 +8,7 @@ import torch
 
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['resolve_device', 'cpu_thread_count', 'use_cpu_threads']
+__all__ = ['resolve_device', 'available_cores', 'cpu_thread_count', 'use_cpu_threads']
 
 
 def resolve_device(name: str = 'auto') -> torch.device:
@@ -28,6 +28,11 @@ def resolve_device(name: str = 'auto') -> torch.device:
     raise ConfigError(f'unknown device {name!r}; expected auto, cpu, cuda or cuda:N')
 
 
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask where the platform has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else (os.cpu_count() or 1)
+
+
 def cpu_thread_count(count: int, share: int = 1) -> int:
     """The torch CPU threads for ``TrainConfig.cpu_threads`` = ``count``.
 
@@ -45,8 +50,7 @@ def cpu_thread_count(count: int, share: int = 1) -> int:
     env = os.environ.get('OMP_NUM_THREADS', '').split(',')[0].strip()
     if env.isdigit() and int(env) >= 1:
         return int(env)
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, 'sched_getaffinity') else (os.cpu_count() or 1)
-    return max(1, cores // share)
+    return max(1, available_cores() // share)
 
 
 def use_cpu_threads(count: int, device: str = 'auto', share: int = 1) -> int:

@@ -60,10 +60,11 @@ def spin_node(name: str, make_node: Callable[[], Node], make_executor: Callable[
             raise
     finally:
         stuck = _drain(executor, drain_timeout_s) if executor is not None else False
-        if node is not None and on_shutdown is not None and stuck:
-            _call_within(on_shutdown, node, drain_timeout_s)  # it may wait for a lock the stuck callback holds
-        elif node is not None and on_shutdown is not None:
-            on_shutdown(node)
+        if node is not None and on_shutdown is not None:
+            if stuck:  # on_shutdown may wait for a lock the stuck callback holds
+                _call_within(on_shutdown, node, drain_timeout_s)
+            else:
+                on_shutdown(node)
         if node is not None and not stuck:
             node.destroy_node()
         rclpy.try_shutdown()

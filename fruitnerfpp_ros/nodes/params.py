@@ -20,7 +20,8 @@ from fruitnerfpp_ros.core.data.keyframe_store import KeyframeConfig
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['CounterSettings', 'ParamSpec', 'PARAMETERS', 'settings_from_parameters', 'load_parameter_file',
-           'keyframe_config', 'PipelineConfigs', 'pipeline_configs', 'declare_parameters', 'parameter_table']
+           'keyframe_config', 'PipelineConfigs', 'pipeline_configs', 'use_node_cpu_threads', 'declare_parameters',
+           'parameter_table']
 
 
 def _p(default: Any, description: str) -> Any:
@@ -207,6 +208,13 @@ def pipeline_configs(settings: CounterSettings) -> PipelineConfigs:
         raise ConfigError(f'config_file {settings.config_file}: {err}' if settings.config_file else str(err)) \
             from err
     return PipelineConfigs(train, export, cluster, name, tuple(warnings))
+
+
+def use_node_cpu_threads(configs: PipelineConfigs, device: str) -> None:
+    """Set the training threads of a node's process: the config's count, and one thread for auto (0): a node shares
+    the robot's cores with its other processes, where more threads' OpenMP barriers stall."""
+    from fruitnerfpp_ros.core.device import use_cpu_threads
+    use_cpu_threads(configs.train.cpu_threads or 1, device)
 
 
 def declare_parameters(node: Any) -> CounterSettings:

@@ -33,7 +33,7 @@ from fruitnerfpp_ros.core.orchard.trees import read_planting_map
 from fruitnerfpp_ros.core.data.transforms_format import TransformsFile
 from fruitnerfpp_ros.errors import FruitNerfError
 from fruitnerfpp_ros.nodes.log import LogFunction, LogLevel
-from fruitnerfpp_ros.nodes.params import CounterSettings, pipeline_configs
+from fruitnerfpp_ros.nodes.params import CounterSettings, pipeline_configs, use_node_cpu_threads
 from fruitnerfpp_ros.nodes.row_params import RowSettings, orchard_config
 from fruitnerfpp_ros.nodes.row_results import row_messages
 
@@ -138,9 +138,7 @@ class RowCounter:
         self._events.close()
 
     def _work(self) -> None:
-        from fruitnerfpp_ros.core.device import use_cpu_threads
-        use_cpu_threads(self.configs.train.cpu_threads or 1, self.settings.device)  # the node owns its process;
-        # auto (0) is one thread: the robot's other processes share the cores
+        use_node_cpu_threads(self.configs, self.settings.device)  # the node owns its process
         while not self._stop.is_set():
             with self._lock:
                 while not self._queue and not self._stop.is_set():

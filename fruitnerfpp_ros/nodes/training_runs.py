@@ -23,7 +23,7 @@ from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.progress import ProgressEvent
 from fruitnerfpp_ros.errors import FruitNerfError
 from fruitnerfpp_ros.nodes.log import LogFunction, LogLevel
-from fruitnerfpp_ros.nodes.params import CounterSettings, pipeline_configs
+from fruitnerfpp_ros.nodes.params import CounterSettings, pipeline_configs, use_node_cpu_threads
 from fruitnerfpp_ros.nodes.results import result_messages, write_report
 from fruitnerfpp_ros.nodes.status import NodeState, RunStatus
 
@@ -199,13 +199,11 @@ class TrainingRuns:
         train_dir = self.run_dir / f'train_{index:03d}'
         try:
             from fruitnerfpp_ros.core.clustering.workers import partition_pool
-            from fruitnerfpp_ros.core.device import use_cpu_threads
             from fruitnerfpp_ros.core.pipeline import run_pipeline
             configs = pipeline_configs(settings)
             for warning in configs.warnings:
                 self._log(LogLevel.WARN, warning)
-            use_cpu_threads(configs.train.cpu_threads or 1, settings.device)  # the node owns its process;
-            # auto (0) is one thread: the robot's other processes share the cores
+            use_node_cpu_threads(configs, settings.device)  # the node owns its process
             if resume:  # a kill or a full disk may have cut the last metrics line, which resuming reads again
                 trim_torn_line(train_dir / 'metrics.jsonl')
             with partition_pool(configs.cluster.n_jobs) as pool:  # workers live for this run only

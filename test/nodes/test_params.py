@@ -58,3 +58,25 @@ def test_the_documented_parameter_tables_are_the_declared_ones() -> None:
     root = Path(__file__).resolve().parents[2]
     for doc in ('README.md', 'docs/ros_interface.md'):
         assert parameter_table() in (root / doc).read_text(), f'{doc}: regenerate with nodes.params.parameter_table()'
+
+
+def test_a_node_trains_on_one_thread_when_the_preset_says_auto(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The `cpu` preset's auto threads take the machine's cores in the CLI; a node shares them with the robot's
+    other processes and keeps one (a count given in the config file is kept)."""
+    import dataclasses
+
+    import torch
+
+    from fruitnerfpp_ros.nodes.params import use_node_cpu_threads
+    monkeypatch.setattr('os.sched_getaffinity', lambda pid: {0, 1, 2, 3}, raising=False)
+    monkeypatch.delenv('OMP_NUM_THREADS', raising=False)
+    configs = pipeline_configs(settings_from_parameters({'preset': 'cpu', 'device': 'cpu'}))
+    assert configs.train.cpu_threads == 0
+    before = torch.get_num_threads()
+    try:
+        use_node_cpu_threads(configs, 'cpu')
+        assert torch.get_num_threads() == 1
+        use_node_cpu_threads(configs._replace(train=dataclasses.replace(configs.train, cpu_threads=3)), 'cpu')
+        assert torch.get_num_threads() == 3
+    finally:
+        torch.set_num_threads(before)
