@@ -4,9 +4,11 @@
 Export and clustering are the cheap end of the pipeline: trying a rule on the fields a suite or a row already
 trained costs seconds per scene instead of a new training. A variant's keys are ClusterConfig fields, or
 ExportConfig fields prefixed with ``export.`` (the cloud is then exported again from the run's checkpoint, into
-OUT/clouds, e.g. ``--variant views3=export.min_views:3``). The runs are read, never rewritten. A cloud exported
-before 2026-12-05 (session 27) lacks its points' viewing directions, so the count cannot move its points to their
-fruits' centres: give such variants an export key (``export.min_views:2``, the default, exports it again).
+OUT/clouds, e.g. ``--variant views3=export.min_views:3``), or MaskFruitConfig fields prefixed with ``masks.`` (the
+fruit the training views' masks add to the clusters, as the pipeline counts: ``--variant nomasks=masks.enabled:0``).
+The runs are read, never rewritten. A cloud exported before 2026-12-05 (session 27) lacks its points' viewing
+directions, so the count cannot move its points to their fruits' centres: give such variants an export key
+(``export.min_views:2``, the default, exports it again).
 
 - A suite directory (``fruitnerfpp bench accuracy --out DIR``): every ``DIR/<scene>/run/cloud.npz`` is counted with
   each variant and scored as the suite scores it (Hungarian, one GT diameter, fruits no training view saw left
@@ -35,12 +37,15 @@ import numpy as np
 from fruitnerfpp_ros.cli.results import load_section
 from fruitnerfpp_ros.core.benchmark.scene_run import scored_ground_truth
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
+from fruitnerfpp_ros.core.clustering.mask_fruits import add_mask_fruits
 from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
 from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.orchard.jobs import read_segment_result, segment_fruits, write_segment_result
+from fruitnerfpp_ros.core.pipeline import load_run_views
 from fruitnerfpp_ros.core.training import TrainConfig
 
 
@@ -70,9 +75,22 @@ def _variants(base: ClusterConfig, texts: list[str]) -> dict[str, Variant]:
     out = {'base': Variant(base)}
     for name, overrides in map(_variant, texts):
         export = tuple(sorted((k.removeprefix('export.'), v) for k, v in overrides.items() if k.startswith('export.')))
-        cluster = {k: v for k, v in overrides.items() if not k.startswith('export.')}
-        out[name] = Variant(dataclasses.replace(base, **cluster), export)
+        masks = {k: type(getattr(base.masks, k))(v) for k, v in
+                 ((k.removeprefix('masks.'), v) for k, v in overrides.items() if k.startswith('masks.'))}
+        cluster = {k: v for k, v in overrides.items() if not k.startswith(('export.', 'masks.'))}
+        out[name] = Variant(dataclasses.replace(base, **cluster, masks=dataclasses.replace(base.masks, **masks)),
+                            export)
     return out
+
+
+def _count(cloud: FruitPointCloud, config: ClusterConfig, run_dir: Path, dataset_dir: Path) -> CountResult:
+    """The cloud's count as the pipeline makes it: the clusters, plus the fruit the run's training views' masks
+    agree on (``masks.enabled``)."""
+    count = count_fruits(cloud, config)
+    if not config.masks.enabled:
+        return count
+    views = load_run_views(run_dir, dataset_dir)
+    return add_mask_fruits(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks)
 
 
 def _cloud(run_dir: Path, export: tuple[tuple[str, int | float | str], ...], scratch: Path) -> FruitPointCloud:
@@ -92,7 +110,8 @@ def _scene_counts(scene_dir: Path, variants: dict[str, Variant], scratch: Path) 
     keyframes = scene_dir / 'run' / 'keyframes'  # a bag scene trained on the replay's keyframes
     gt = scored_ground_truth(scene_dir / 'data' / 'gt_fruits.json', keyframes if keyframes.is_dir() else
                              scene_dir / 'data', scene_dir / 'run', TrainConfig().data.eval_every)
-    counts = {name: count_fruits(clouds[v.export], v.cluster) for name, v in variants.items()}
+    dataset = keyframes if keyframes.is_dir() else scene_dir / 'data'
+    counts = {name: _count(clouds[v.export], v.cluster, scene_dir / 'run', dataset) for name, v in variants.items()}
     return {name: (c.count, float(evaluate_counts(c.centers(), gt).f1)) for name, c in counts.items()}
 
 
@@ -121,7 +140,7 @@ def recount_row(run: Path, copy: Path, variant: Variant) -> None:
             continue
         fruits, record = done
         cloud = _cloud(seg / 'run', variant.export, copy / 'segments' / seg.name / 'cloud')
-        fruits = segment_fruits(fruits.segment, count_fruits(cloud, variant.cluster))
+        fruits = segment_fruits(fruits.segment, _count(cloud, variant.cluster, seg / 'run', seg / 'dataset'))
         info = {k: v for k, v in record.items() if k not in ('segment', 'fruits')}
         (copy / 'segments' / seg.name).mkdir(parents=True, exist_ok=True)
         write_segment_result(copy / 'segments' / seg.name, fruits, **info)

@@ -21,12 +21,16 @@ def test_export_variants_export_again_from_the_checkpoint(tiny_trained_run: Path
     recount = load_bench_script('recount')
     from fruitnerfpp_ros.core.clustering.config import ClusterConfig
     variants = recount._variants(ClusterConfig(), ['same=export.min_views:2',       # the default: the same cloud
-                                                   'strict=export.min_views:40'])   # most voxels fail it
+                                                   'strict=export.min_views:1000,masks.enabled:0',  # no voxel passes
+                                                   'masks=export.min_views:1000'])  # the masks' fruit alone
     assert variants['same'].export == (('min_views', 2),) and variants['same'].cluster == ClusterConfig()
+    assert variants['strict'].cluster.masks.enabled is False and variants['masks'].cluster.masks.enabled
     recount.recount_suites([tmp_path / 'suite'], variants, tmp_path / 'out')
     table = json.loads((tmp_path / 'out' / 'recount.json').read_text())['scenes']['suite/apple']
-    (base_count, base_f1), (same_count, same_f1), (strict_count, _) = table['base'], table['same'], table['strict']
+    (base_count, base_f1), (same_count, same_f1) = table['base'], table['same']
     assert_counted(base_count, 20, base_f1)
     assert (same_count, same_f1) == (base_count, base_f1)
-    assert strict_count < base_count
+    assert table['strict'][0] == 0
+    masks_count, masks_f1 = table['masks']       # an empty cloud: every fruit triangulated from the training masks
+    assert masks_count > 0 and masks_f1 >= 0.5, table['masks']
     assert (tmp_path / 'out' / 'clouds' / 'suite' / 'apple').is_dir()

@@ -21,6 +21,7 @@ from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
+from fruitnerfpp_ros.core.clustering.mask_fruits import MaskViews
 from fruitnerfpp_ros.core.config_io import config_to_mapping
 from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth, load_predicted_centers
 from fruitnerfpp_ros.core.evaluation.metrics import EvalMetrics, evaluate_counts
@@ -33,7 +34,8 @@ from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.progress import PipelineStage, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.errors import ExportError
 
-__all__ = ['PipelineResult', 'PipelineOutputs', 'run_pipeline', 'export_run', 'count_run', 'count_cloud',
+__all__ = ['PipelineResult', 'PipelineOutputs', 'RunViews', 'load_run_views', 'run_pipeline',
+           'export_run', 'count_run', 'count_cloud',
            'evaluate_run', 'training_views', 'counts_to_json', 'write_counts', 'COUNTS_FORMAT_VERSION', 'CLOUD_PLY',
            'CLOUD_NPZ', 'COUNTS_JSON', 'EVAL_JSON', 'EXPORT_JSON', 'GT_JSON']
 
@@ -204,6 +206,34 @@ def _cloud_source(source: Path) -> Path:
     return source
 
 
+@dataclass(frozen=True)
+class RunViews:
+    """A trained run's training views as the count checks them: masks, intrinsics, the poses it trained with."""
+
+    masks: MaskViews
+    fruit_diameter_m: float
+    aabb: np.ndarray
+
+
+def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *, device: str = 'cpu') -> RunViews:
+    """The training views of the run in ``run_dir`` (its dataset, or ``dataset_dir``), with the poses it trained
+    with (refined ones when pose refinement ran).
+
+    Raises:
+        CheckpointError: ``run_dir`` is not a trained run.
+        DatasetError: its dataset cannot be read.
+    """
+    from fruitnerfpp_ros.core.data.dataset import load_dataset
+    from fruitnerfpp_ros.core.training import load_trained_scene
+
+    scene = load_trained_scene(run_dir, device=device)
+    dataset = load_dataset(dataset_dir or scene.dataset_dir, eval_every=scene.config.data.eval_every)
+    poses = scene.poses(dataset.T_world_camera).detach().cpu().double().numpy()
+    masks = MaskViews(dataset.instance_masks.numpy(), dataset.intrinsics.double().numpy(), poses,
+                      dataset.train_indices.numpy())
+    return RunViews(masks, scene.fruit_diameter_m, np.asarray(scene.aabb, np.float64))
+
+
 def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *, out: str | Path | None = None,
               executor: Executor | None = None,
               progress: ProgressCallback | None = None) -> tuple[CountResult, FruitPointCloud, Path]:
@@ -211,32 +241,46 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
 
     Writes ``counts.json`` (to ``out``, default next to the cloud) and rewrites the cloud's ``.ply`` and ``.npz``
     with the cluster ids, so cloud and counts carry the same ids. ``executor``: where the clustering partitions
-    run (see :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process).
+    run (see :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process). A trained run
+    directory's count also holds the fruit its training views' masks agree on (``cluster_config.masks``), as
+    :func:`run_pipeline`'s does; a cloud file alone has no views to check.
 
     Returns:
         (the count, the cloud, the counts.json path).
 
     Raises:
         ExportError: no cloud found / unreadable cloud.
+        DatasetError: the run's dataset cannot be read (for the masks' check).
     """
+    from fruitnerfpp_ros.core.training import RunDir
+
     cloud_path = _cloud_source(Path(source))
     cloud, _ = read_cloud(cloud_path)
     counts_path = Path(out) if out is not None else cloud_path.with_name(COUNTS_JSON)
+    views = None
+    if Path(source).is_dir() and (cluster_config or ClusterConfig()).masks.enabled and \
+            RunDir(source).latest_checkpoint.is_file():
+        views = load_run_views(source)
     count = count_cloud(cloud, cluster_config, cloud_path=cloud_path, counts_path=counts_path, executor=executor,
-                        progress=progress)
+                        progress=progress, views=views)
     return count, cloud, counts_path
 
 
 def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *, cloud_path: Path,
                 counts_path: Path, executor: Executor | None = None,
-                progress: ProgressCallback | None = None) -> CountResult:
+                progress: ProgressCallback | None = None, views: RunViews | None = None) -> CountResult:
     """Count ``cloud``, write ``counts_path`` and the cloud with its cluster ids as ``cloud_path`` .ply + .npz.
 
     ``executor``: where the clustering partitions run (see
-    :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process).
+    :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process). ``views``: the run's
+    training views; with them the fruit their unexplained masks agree on are added (``cluster_config.masks``).
     """
     config = cluster_config or ClusterConfig()
     count = count_fruits(cloud, config, executor=executor, progress=progress)
+    if views is not None and config.masks.enabled:
+        from fruitnerfpp_ros.core.clustering.mask_fruits import add_mask_fruits
+
+        count = add_mask_fruits(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks)
     write_counts(counts_path, count, config, source=str(cloud_path))
     write_ply(cloud_path.with_suffix('.ply'), cloud, count.labels)
     write_npz(cloud_path.with_suffix('.npz'), cloud, count.labels)
@@ -321,8 +365,11 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
     exported = export_run(run_dir, export_config, device=device, progress=progress, stop_event=stop_event,
                           write_cloud=False)
     cloud, counts_path = exported.cloud, run_dir / COUNTS_JSON
+    views = None
+    if (cluster_config or ClusterConfig()).masks.enabled and not exported.report.stopped:
+        views = load_run_views(run_dir)
     count = count_cloud(cloud, cluster_config, cloud_path=run_dir / CLOUD_PLY, counts_path=counts_path,
-                        executor=executor, progress=progress)
+                        executor=executor, progress=progress, views=views)
     metrics = None
     eval_path = None
     gt_path = dataset_dir / GT_JSON

@@ -3,12 +3,55 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['ClusterConfig']
+__all__ = ['ClusterConfig', 'MaskFruitConfig']
+
+
+@dataclass(frozen=True)
+class MaskFruitConfig:
+    """Fruit triangulated from the instance masks the cloud's count leaves unexplained (``mask_fruits.py``).
+
+    Defaults set on the ``cpu`` and ``quick`` suites' trained fields, judged on the ``holdout`` suite
+    (docs/results/accuracy_suite.md, session 31)."""
+
+    enabled: bool = True
+    """Add the fruit several views' unexplained masks agree on (off: the count is the cloud's clusters alone)."""
+    min_mask_pixels: int = 6
+    """Smaller masks are left out (a few pixels' centroid gives no ray to trust)."""
+    explained_share: float = 0.5
+    """A mask is explained when this share of its pixels lies on the discs of the counted fruits."""
+    disc_radius_factor: float = 1.2
+    """A counted fruit's disc in a view: this many times its projected radius (the centres are not exact) ..."""
+    disc_margin_px: float = 1.0
+    """... plus this many pixels (masks and projections are whole pixels: a fruit a few pixels wide is all edge)."""
+    ray_gap_diameters: float = 0.5
+    """Two masks' rays meet when they pass within this many fruit diameters of each other."""
+    max_depth_factor: float = 1.4
+    """A mask's fruit lies no farther than this times the depth at which a whole fruit spans the mask."""
+    min_views: int = 3
+    """A fruit needs unexplained masks of at least this many views whose rays meet at it."""
+    min_separation_diameters: float = 1.0
+    """No fruit is added this close (in fruit diameters) to a counted or an added one."""
+    min_camera_distance_m: float = 0.1
+    """A fruit lies at least this far in front of each camera that sees it."""
+
+    def __post_init__(self) -> None:
+        checks = [(self.min_mask_pixels >= 1, 'min_mask_pixels must be >= 1'),
+                  (0 < self.explained_share <= 1, 'explained_share must be in (0, 1]'),
+                  (self.disc_radius_factor > 0 and self.disc_margin_px >= 0,
+                   'disc_radius_factor must be > 0 and disc_margin_px >= 0'),
+                  (self.ray_gap_diameters > 0, 'ray_gap_diameters must be > 0'),
+                  (self.max_depth_factor > 0, 'max_depth_factor must be > 0'),
+                  (self.min_views >= 2, 'min_views must be >= 2 (one view cannot place a fruit in depth)'),
+                  (self.min_separation_diameters >= 0, 'min_separation_diameters must be >= 0'),
+                  (self.min_camera_distance_m >= 0, 'min_camera_distance_m must be >= 0')]
+        for ok, message in checks:
+            if not ok:
+                raise ConfigError(f'MaskFruitConfig: {message}')
 
 
 @dataclass(frozen=True)
@@ -153,6 +196,9 @@ class ClusterConfig:
     tiny-scene clouds of docs/results/tiny_preset.md: F1 0.92 / 0.88 / 0.95 -> 0.92 / 0.91 / 0.98. 0 disables."""
     seed: int = 0
     """Random seed for the subsample and k-means."""
+    masks: MaskFruitConfig = field(default_factory=MaskFruitConfig)
+    """After the clustering: fruit the training views' unexplained masks agree on (core/clustering/mask_fruits.py;
+    applied where the views are at hand: the pipeline, ``fruitnerfpp count RUN_DIR``)."""
 
     def __post_init__(self) -> None:
         checks = [

@@ -50,6 +50,8 @@ class Fruit:
         diameter_m: estimated diameter in metres.
         extent_m: [3] axis-aligned size of the cluster in metres.
         n_points: number of cloud points in the cluster.
+        source: ``cloud`` (a cluster of the cloud) or ``masks`` (triangulated from the training views' masks where
+            the cloud has no points: core/clustering/mask_fruits.py; ``n_points`` 0).
     """
 
     id: int
@@ -57,10 +59,12 @@ class Fruit:
     diameter_m: float
     extent_m: np.ndarray
     n_points: int
+    source: str = 'cloud'
 
     def to_json(self) -> dict[str, Any]:
         return {'id': int(self.id), 'center': [float(v) for v in self.center], 'diameter': float(self.diameter_m),
-                'extent': [float(v) for v in self.extent_m], 'n_points': int(self.n_points)}
+                'extent': [float(v) for v in self.extent_m], 'n_points': int(self.n_points),
+                'source': self.source}
 
 
 @dataclass(frozen=True)

@@ -217,7 +217,7 @@ def finish_row(plan: RowPlan, outcomes: Sequence[SegmentOutcome], out_dir: Path,
     ok = {o.index for o in outcomes if o.ok}
     finished = [s.core for s in plan.segments if s.index in ok]
     tree_counts, index = count_trees(trees, plan.frame, fruits.centers, fruits.diameters, _spans(finished),
-                                     config.trees)
+                                     config.trees, measured=fruits.n_points > 0)
     tree_ids = trees.ids[index] if len(trees) else np.zeros(len(fruits), np.int64)
     fruit_geo = georef.geodetic_of(fruits.centers) if georef is not None and len(fruits) else None
     tree_geo = georef.geodetic_of(trees.positions) if georef is not None and len(trees) else None

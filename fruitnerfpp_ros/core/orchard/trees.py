@@ -64,8 +64,8 @@ class TreeCount(NamedTuple):
 
     Attributes:
         id: tree id; position: [3] world (m); along_m: position along the row (m); count: fruits;
-        diameter_mean_m / diameter_std_m: of its fruits (0 without fruit); complete: its whole crown lies in counted
-        segments (live counts: a tree at the frontier is still being driven past).
+        diameter_mean_m / diameter_std_m: of its fruits whose diameter was measured (0 without any); complete: its
+        whole crown lies in counted segments (live counts: a tree at the frontier is still being driven past).
     """
 
     id: int
@@ -312,12 +312,15 @@ def assign_to_trees(centers: np.ndarray, trees: TreeMap, config: TreeConfig = Tr
 
 def count_trees(trees: TreeMap, frame: RowFrame, fruit_centers: np.ndarray, fruit_diameters: np.ndarray,
                 counted: tuple[float, float] | list[tuple[float, float]] | None = None,
-                config: TreeConfig = TreeConfig()) -> tuple[list[TreeCount], np.ndarray]:
+                config: TreeConfig = TreeConfig(), measured: np.ndarray | None = None,
+                ) -> tuple[list[TreeCount], np.ndarray]:
     """Per-tree counts and each fruit's tree index.
 
     Args:
         counted: the stretch(es) of the row already counted (live: the finished segments); a tree is complete
             when its crown (trunk +- half the distance to its neighbours) plus ``complete_margin_m`` lies inside.
+        measured: [K] bool, the fruits whose diameter was measured (from their cloud points; the fruits the masks
+            added carry the scene's diameter): only these enter the diameter mean and spread. None: all.
     """
     index = assign_to_trees(fruit_centers, trees, config)
     along = frame.along(trees.positions) if len(trees) else np.zeros(0)
@@ -329,10 +332,11 @@ def count_trees(trees: TreeMap, frame: RowFrame, fruit_centers: np.ndarray, frui
         half[order[1:]] = np.minimum(half[order[1:]], 0.5 * gaps)
     spans = [counted] if isinstance(counted, tuple) else counted
     result = []
+    sized = np.ones(len(index), bool) if measured is None else np.asarray(measured, bool)
     for t in range(len(trees)):
-        d = np.asarray(fruit_diameters)[index == t]
+        d = np.asarray(fruit_diameters)[(index == t) & sized]
         lo, hi = along[t] - half[t] - config.complete_margin_m, along[t] + half[t] + config.complete_margin_m
         complete = spans is None or any(a <= lo and hi <= b for a, b in spans)
-        result.append(TreeCount(int(trees.ids[t]), trees.positions[t], float(along[t]), int(len(d)),
+        result.append(TreeCount(int(trees.ids[t]), trees.positions[t], float(along[t]), int(np.sum(index == t)),
                                 float(d.mean()) if len(d) else 0.0, float(d.std()) if len(d) else 0.0, complete))
     return result, index

@@ -62,6 +62,10 @@ def test_few_fruit_go_to_the_nearer_trunk() -> None:
     assert [c.count for c in counts] == [2, 1] and index.tolist() == [0, 1, 0]
     assert counts[0].diameter_mean_m == pytest.approx(0.08) and counts[0].diameter_std_m == pytest.approx(0.01)
     assert [c.complete for c in counts] == [True, False]  # tree 2's crown reaches beyond the counted stretch
+    # the third fruit was added from the masks (no points, the scene's diameter): counted, but its size unmeasured
+    counts, _ = count_trees(trees, FRAME, fruit, np.array([0.07, 0.08, 0.2]), measured=np.array([True, True, False]))
+    assert [c.count for c in counts] == [2, 1]
+    assert counts[0].diameter_mean_m == pytest.approx(0.07) and counts[0].diameter_std_m == 0.0
 
 
 def _shell(centre: list[float], radius: float, n: int, rng: np.random.Generator) -> np.ndarray:

@@ -1,0 +1,232 @@
+"""Fruit the training views' masks agree on where the cloud has none: triangulated from the masks it leaves unexplained.
+
+The surface export keeps a fruit only where the trained field made a surface. A fruit seen through gaps in the
+foliage, a few views at a time, often gets none: the field ends its rays on the leaves in front (docs/results/
+accuracy_suite.md, session 20), and no clustering can count points that were never exported. Its masks are still in
+the training views. This step, run after the clustering, looks for them:
+
+1. **Unexplained masks.** Every counted fruit is drawn into every training view as a disc of its projected size
+   (``disc_radius_factor`` radii plus ``disc_margin_px``). A view's instance mask of at least ``min_mask_pixels``
+   pixels is explained when at least ``explained_share`` of its pixels lie on such discs; the others are fruit the
+   count may lack (or the caps of counted fruits whose centres lie off, which the next steps must not turn into
+   doubles).
+2. **Rays.** An unexplained mask gives the ray through its centroid and a farthest depth: the depth at which a whole
+   fruit of the scene's diameter would span the mask's extent, times ``max_depth_factor`` (a mask cut by leaves is
+   smaller, its fruit nearer than that).
+3. **Triangulation.** Rays of two different views that pass within ``ray_gap_diameters`` of each other, in front of
+   both cameras, within both farthest depths and inside the scene box, meet at a candidate; candidates within
+   ``min_separation_diameters`` of a counted fruit are dropped (they are its caps).
+4. **Greedy support.** A candidate's support is the number of distinct views with an unused ray through it (within
+   half the gap, within its farthest depth). The best-supported candidate with at least ``min_views`` views becomes
+   a fruit at the least-squares point of its rays, its rays are used up, and the next is taken, until none has the
+   support left: each mask explains one fruit at most, so two fruits' rays crossing by chance cannot outvote them.
+
+Everything is in metres and fruit diameters; nothing depends on the scene box's size. The added fruits have no
+cloud points (``n_points`` 0, ``source`` ``masks``): counts, centres and markers hold them, the instance cloud does
+not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+import scipy.sparse as sparse
+from scipy.spatial import cKDTree
+
+from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
+from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+
+__all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays',
+           'add_mask_fruits']
+
+
+@dataclass(frozen=True)
+class MaskViews:
+    """The training views a count is checked against.
+
+    Attributes:
+        instance_masks: [V, H, W] integer instance ids (0 = no fruit), as the dataset holds them.
+        intrinsics: [V, 4] fx, fy, cx, cy (pixels, undistorted images).
+        T_world_camera: [V, 4, 4] camera-to-world poses, OpenGL camera axes (x right, y up, looking along -z): the
+            poses the field was trained with (refined ones when pose refinement ran).
+        views: indices of the views to use (the training views).
+    """
+
+    instance_masks: np.ndarray
+    intrinsics: np.ndarray
+    T_world_camera: np.ndarray
+    views: np.ndarray
+
+
+@dataclass(frozen=True)
+class MaskRays:
+    """The rays through the unexplained masks' centroids.
+
+    Attributes:
+        view: [R] the view of each mask.
+        origin: [R, 3] camera centre (m).
+        direction: [R, 3] unit direction through the mask's centroid.
+        max_depth: [R] farthest distance along the ray at which its fruit may lie (m).
+        pixels: [R] the mask's pixels.
+    """
+
+    view: np.ndarray
+    origin: np.ndarray
+    direction: np.ndarray
+    max_depth: np.ndarray
+    pixels: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.view)
+
+
+def _project(T: np.ndarray, K: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(u, v, depth along the viewing axis) of ``points`` [N, 3] in a view with camera-to-world ``T``."""
+    cam = (points - T[:3, 3]) @ T[:3, :3]
+    depth = -cam[:, 2]
+    safe = np.where(depth > 1e-9, depth, 1.0)
+    return K[0] * cam[:, 0] / safe + K[2], -K[1] * cam[:, 1] / safe + K[3], depth
+
+
+def _discs(T: np.ndarray, K: np.ndarray, centers: np.ndarray, radius_m: float, margin_px: float,
+           shape: tuple[int, int]) -> np.ndarray:
+    """[H, W] uint8 image, 1 on the projected discs (radius ``radius_m`` there, plus ``margin_px``) of the fruits at
+    ``centers``."""
+    height, width = shape
+    image = np.zeros(shape, np.uint8)
+    if not len(centers):
+        return image
+    u, v, depth = _project(T, K, centers)
+    radius = radius_m * K[0] / np.maximum(depth, 1e-9) + margin_px
+    near = (depth > 1e-6) & (u + radius >= 0) & (u - radius < width) & (v + radius >= 0) & (v - radius < height)
+    for x, y, r in zip(u[near], v[near], radius[near]):   # one filled circle per fruit in view (sub-pixel, 2 bits)
+        cv2.circle(image, (int(round(x * 4)), int(round(y * 4))), max(1, int(round(r * 4))), 1, -1, shift=2)
+    return image
+
+
+def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_m: float,
+                          config: MaskFruitConfig) -> MaskRays:
+    """The rays of the masks of ``views`` that the fruits at ``centers`` [K, 3] do not explain (see module doc)."""
+    parts: list[tuple[np.ndarray, ...]] = []
+    radius_m = 0.5 * fruit_diameter_m * config.disc_radius_factor
+    for view in np.asarray(views.views, np.int64):
+        mask = np.asarray(views.instance_masks[view])
+        T, K = np.asarray(views.T_world_camera[view], np.float64), np.asarray(views.intrinsics[view], np.float64)
+        rows, cols = np.nonzero(mask)
+        if not len(rows):
+            continue
+        ids, label, pixels = np.unique(mask[rows, cols], return_inverse=True, return_counts=True)
+        discs = _discs(T, K, centers, radius_m, config.disc_margin_px, mask.shape)
+        covered = np.bincount(label, weights=discs[rows, cols], minlength=len(ids))
+        lo_r, hi_r = np.full(len(ids), rows.max()), np.zeros(len(ids), np.int64)
+        lo_c, hi_c = np.full(len(ids), cols.max()), np.zeros(len(ids), np.int64)
+        np.minimum.at(lo_r, label, rows), np.maximum.at(hi_r, label, rows)
+        np.minimum.at(lo_c, label, cols), np.maximum.at(hi_c, label, cols)
+        keep = (pixels >= config.min_mask_pixels) & (covered < config.explained_share * pixels)
+        if not keep.any():
+            continue
+        u = np.bincount(label, weights=cols, minlength=len(ids))[keep] / pixels[keep] + 0.5
+        v = np.bincount(label, weights=rows, minlength=len(ids))[keep] / pixels[keep] + 0.5
+        cam = np.stack([(u - K[2]) / K[0], -(v - K[3]) / K[1], -np.ones_like(u)], 1)
+        direction = cam @ T[:3, :3].T
+        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        extent = np.maximum(hi_r - lo_r, hi_c - lo_c)[keep] + 1.0
+        # a whole fruit spans `extent` pixels at depth f d / extent; the ray's length is longer off the axis
+        axis_cos = 1.0 / np.linalg.norm(cam, axis=1)
+        max_depth = config.max_depth_factor * K[0] * fruit_diameter_m / extent / axis_cos
+        parts.append((np.full(len(u), view), np.broadcast_to(T[:3, 3], (len(u), 3)), direction, max_depth,
+                      pixels[keep]))
+    if not parts:
+        return MaskRays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64))
+    return MaskRays(*(np.concatenate([p[i] for p in parts]) for i in range(5)))
+
+
+def _pair_points(rays: MaskRays, gap_m: float, near_m: float) -> np.ndarray:
+    """[P, 3] midpoints of the closest approach of every two rays of different views that pass within ``gap_m``,
+    in front of both cameras (``near_m``) and within both farthest depths."""
+    a, b = np.triu_indices(len(rays), 1)
+    a, b = a[rays.view[a] != rays.view[b]], b[rays.view[a] != rays.view[b]]
+    O, D = rays.origin, rays.direction
+    w = O[a] - O[b]
+    cos = np.einsum('ij,ij->i', D[a], D[b])
+    da, db = np.einsum('ij,ij->i', D[a], w), np.einsum('ij,ij->i', D[b], w)
+    denominator = 1.0 - cos * cos
+    crossing = denominator > 1e-4                     # rays that are not parallel (a baseline to triangulate on)
+    a, b, cos, da, db, denominator = a[crossing], b[crossing], cos[crossing], da[crossing], db[crossing], \
+        denominator[crossing]
+    s = (cos * db - da) / denominator                 # distance along ray a
+    t = (db - cos * da) / denominator                 # distance along ray b
+    pa, pb = O[a] + s[:, None] * D[a], O[b] + t[:, None] * D[b]
+    good = (np.linalg.norm(pa - pb, axis=1) < gap_m) & (s > near_m) & (t > near_m) & (s < rays.max_depth[a]) \
+        & (t < rays.max_depth[b])
+    return 0.5 * (pa[good] + pb[good])
+
+
+def _support(candidates: np.ndarray, rays: MaskRays, reach_m: float, near_m: float,
+             chunk: int = 4096) -> sparse.csr_matrix:
+    """[C, R] sparse: ray r passes within ``reach_m`` of candidate c, in front of its camera and within its depth."""
+    blocks = []
+    for start in range(0, len(candidates), chunk):
+        rel = candidates[start:start + chunk, None, :] - rays.origin[None]          # [c, R, 3]
+        along = np.einsum('crk,rk->cr', rel, rays.direction)
+        off = np.linalg.norm(rel - along[..., None] * rays.direction[None], axis=-1)
+        blocks.append(sparse.csr_matrix((off < reach_m) & (along > near_m) & (along < rays.max_depth[None])))
+    return sparse.vstack(blocks).tocsr()
+
+
+def triangulate_mask_rays(rays: MaskRays, fruit_diameter_m: float, aabb: np.ndarray | None, centers: np.ndarray,
+                          config: MaskFruitConfig) -> np.ndarray:
+    """[M, 3] fruit centres several views' rays agree on, away from the counted ``centers`` [K, 3] (module doc)."""
+    if len(rays) < config.min_views:
+        return np.zeros((0, 3))
+    gap, near = config.ray_gap_diameters * fruit_diameter_m, config.min_camera_distance_m
+    separation = config.min_separation_diameters * fruit_diameter_m
+    points = _pair_points(rays, gap, near)
+    if aabb is not None:
+        lo, hi = np.asarray(aabb, np.float64)
+        points = points[np.all((points >= lo) & (points <= hi), axis=1)]
+    if len(centers) and len(points):
+        points = points[cKDTree(centers).query(points)[0] >= separation]
+    if not len(points):
+        return np.zeros((0, 3))
+    support = _support(points, rays, 0.5 * gap, near)
+    views, view_index = np.unique(rays.view, return_inverse=True)
+    one_hot = sparse.csr_matrix((np.ones(len(rays)), (np.arange(len(rays)), view_index)), shape=(len(rays), len(views)))
+    unused = np.ones(len(rays))
+    added: list[np.ndarray] = []
+    while True:
+        seen_views = (support @ sparse.diags(unused) @ one_hot) > 0
+        n_views = np.asarray(seen_views.sum(1)).ravel()
+        best = int(np.argmax(n_views))
+        if n_views[best] < config.min_views:
+            break
+        members = support[best].indices[unused[support[best].indices] > 0]
+        unused[members] = 0.0
+        # least-squares point of the members' rays: sum (I - d d^T) x = sum (I - d d^T) o
+        direction, origin = rays.direction[members], rays.origin[members]
+        P = np.eye(3)[None] - direction[:, :, None] * direction[:, None, :]
+        x = np.linalg.lstsq(P.sum(0), np.einsum('nij,nj->i', P, origin), rcond=None)[0]
+        others = np.vstack([np.asarray(centers, np.float64).reshape(-1, 3)] + added) if len(centers) or added \
+            else np.zeros((0, 3))
+        if not len(others) or np.min(np.linalg.norm(others - x, axis=1)) >= separation:
+            added.append(x[None])
+    return np.vstack(added) if added else np.zeros((0, 3))
+
+
+def add_mask_fruits(count: CountResult, views: MaskViews, fruit_diameter_m: float, aabb: np.ndarray | None,
+                    config: MaskFruitConfig) -> CountResult:
+    """``count`` with the fruits its unexplained masks agree on appended (ids after the clusters', ``n_points`` 0,
+    ``source`` ``masks``); ``stats['mask_fruits']`` says how many and from how many unexplained masks."""
+    if not config.enabled or not fruit_diameter_m > 0:
+        return count
+    centers = count.centers()
+    rays = unexplained_mask_rays(views, centers, fruit_diameter_m, config)
+    found = triangulate_mask_rays(rays, fruit_diameter_m, aabb, centers, config)
+    start = max((f.id for f in count.fruits), default=0) + 1
+    extent = np.full(3, fruit_diameter_m)
+    fruits = [Fruit(start + i, x, fruit_diameter_m, extent, 0, source='masks') for i, x in enumerate(found)]
+    stats = {**count.stats, 'mask_fruits': {'added': len(fruits), 'unexplained_masks': len(rays)}}
+    return dataclasses.replace(count, fruits=[*count.fruits, *fruits], stats=stats)

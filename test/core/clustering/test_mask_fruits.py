@@ -1,0 +1,121 @@
+"""Fruit the training views' masks agree on where the cloud's count has none (core/clustering/mask_fruits.py).
+
+The views are rendered here, independently of the module: spheres ray-cast into pinhole cameras on a circle (a
+z-buffer gives each pixel the nearest fruit), so the masks are what a camera shows, occlusions included.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fruitnerfpp_ros.core.clustering.config import ClusterConfig, MaskFruitConfig
+from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.clustering.mask_fruits import MaskViews, add_mask_fruits
+from fruitnerfpp_ros.errors import ConfigError
+
+DIAMETER = 0.07
+SIZE, FOCAL = 120, 120.0
+#: five fruits in a 0.5 m crown; each is 2-3 diameters from the others
+FRUITS = np.array([[0.0, 0.0, 0.0], [0.2, 0.05, 0.1], [-0.18, 0.12, -0.05], [0.05, -0.2, 0.15],
+                   [-0.1, -0.1, -0.2]])
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Camera-to-world pose, OpenGL axes (x right, y up, looking along -z)."""
+    forward = (target - eye) / np.linalg.norm(target - eye)
+    x = np.cross(forward, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(x, forward), -forward, eye
+    return T
+
+
+def _render(poses: np.ndarray, centers: np.ndarray) -> np.ndarray:
+    """[V, H, W] instance ids (fruit k is k + 1) of spheres of DIAMETER at ``centers``, nearest hit per pixel."""
+    rows, cols = np.mgrid[0:SIZE, 0:SIZE]
+    cam = np.stack([(cols + 0.5 - SIZE / 2) / FOCAL, -(rows + 0.5 - SIZE / 2) / FOCAL, -np.ones((SIZE, SIZE))], -1)
+    masks = np.zeros((len(poses), SIZE, SIZE), np.int32)
+    for v, T in enumerate(poses):
+        d = cam @ T[:3, :3].T
+        d /= np.linalg.norm(d, axis=-1, keepdims=True)
+        rel = centers - T[:3, 3]                                           # [K, 3]
+        along = d @ rel.T                                                  # [H, W, K]
+        off2 = (rel * rel).sum(1) - along ** 2
+        hit = (off2 <= (DIAMETER / 2) ** 2) & (along > 0)
+        depth = np.where(hit, along, np.inf)
+        nearest = depth.argmin(-1)
+        masks[v] = np.where(np.isfinite(depth.min(-1)), nearest + 1, 0)
+    return masks
+
+
+@pytest.fixture(scope='module')
+def views() -> MaskViews:
+    angles = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    poses = np.stack([_look_at(np.array([1.2 * np.cos(a), 1.2 * np.sin(a), 0.3]), np.zeros(3)) for a in angles])
+    intrinsics = np.tile([FOCAL, FOCAL, SIZE / 2, SIZE / 2], (len(poses), 1))
+    return MaskViews(_render(poses, FRUITS), intrinsics, poses, np.arange(len(poses)))
+
+
+def _count(centers: np.ndarray) -> CountResult:
+    fruits = [Fruit(i + 1, c, DIAMETER, np.full(3, DIAMETER), 100) for i, c in enumerate(centers)]
+    return CountResult(np.zeros(0, np.int32), fruits, {})
+
+
+def test_the_masks_are_fruit_of_a_few_dozen_pixels(views: MaskViews) -> None:
+    ids, pixels = np.unique(views.instance_masks[views.instance_masks > 0], return_counts=True)
+    assert ids.tolist() == [1, 2, 3, 4, 5]
+    assert 20 < np.median(pixels) / len(views.views) < 60     # ~3.5 px radius, some hidden behind others
+
+
+def test_fruit_the_count_lacks_are_added_where_they_hang(views: MaskViews) -> None:
+    rng = np.random.default_rng(0)
+    counted = FRUITS[:3] + rng.normal(0, 0.01, (3, 3))                    # the cloud's clusters, 1 cm off
+    result = add_mask_fruits(_count(counted), views, DIAMETER, None, MaskFruitConfig())
+    added = [f for f in result.fruits if f.source == 'masks']
+    assert len(added) == 2, result.stats
+    assert [f.id for f in added] == [4, 5] and all(f.n_points == 0 for f in added)
+    found = np.array([f.center for f in added])
+    error = np.linalg.norm(found[:, None] - FRUITS[None, 3:], axis=-1).min(0)   # each missing fruit, its nearest
+    assert np.all(error < 0.25 * DIAMETER), error
+    assert result.stats['mask_fruits']['added'] == 2
+    assert np.array_equal(result.centers()[:3], counted) and [f.source for f in result.fruits[:3]] == ['cloud'] * 3
+
+
+def test_a_complete_count_gets_nothing_added(views: MaskViews) -> None:
+    result = add_mask_fruits(_count(FRUITS + 0.005), views, DIAMETER, None, MaskFruitConfig())
+    assert result.count == len(FRUITS), [f.center for f in result.fruits[len(FRUITS):]]
+
+
+def test_an_empty_count_is_completed_from_the_masks_alone(views: MaskViews) -> None:
+    result = add_mask_fruits(_count(np.zeros((0, 3))), views, DIAMETER, None, MaskFruitConfig())
+    assert result.count == len(FRUITS)
+
+
+def test_fruit_too_few_views_agree_on_are_not_added(views: MaskViews) -> None:
+    two = dataclasses.replace(views, views=np.array([0, 3]))                 # two views, 90 degrees apart
+    assert add_mask_fruits(_count(FRUITS[:3]), two, DIAMETER, None, MaskFruitConfig()).count == 3
+    three = dataclasses.replace(views, views=np.array([0, 3, 6]))
+    assert add_mask_fruits(_count(FRUITS[:3]), three, DIAMETER, None, MaskFruitConfig()).count == 5
+
+
+def test_outside_the_scene_box_nothing_is_added(views: MaskViews) -> None:
+    box = np.array([[-0.3, -0.3, -0.1], [0.3, 0.3, 0.3]])                   # holds fruit 3 (z 0.15), not 4 (z -0.2)
+    result = add_mask_fruits(_count(FRUITS[:3]), views, DIAMETER, box, MaskFruitConfig())
+    assert result.count == 4
+    assert np.linalg.norm(result.fruits[-1].center - FRUITS[3]) < 0.25 * DIAMETER
+
+
+def test_off_leaves_the_count_alone(views: MaskViews) -> None:
+    count = _count(FRUITS[:3])
+    assert add_mask_fruits(count, views, DIAMETER, None, MaskFruitConfig(enabled=False)) is count
+
+
+def test_the_settings_are_checked_and_nested_in_the_clustering_config() -> None:
+    with pytest.raises(ConfigError):
+        MaskFruitConfig(min_views=1)
+    with pytest.raises(ConfigError):
+        MaskFruitConfig(explained_share=0.0)
+    assert ClusterConfig().masks == MaskFruitConfig()
