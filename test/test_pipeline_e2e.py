@@ -64,9 +64,14 @@ def test_outputs_carry_the_same_ids(pipeline_run) -> None:
     # a fruit's centre: the median of its points moved along their viewing directions (which the file keeps)
     assert cloud.view_dir is not None and cloud.fruit_diameter_m
     moved = cloud.xyz + ClusterConfig().centre_shift_diameters * cloud.fruit_diameter_m * cloud.view_dir
-    for fruit in counts['fruits']:
+    clusters = [f for f in counts['fruits'] if f['source'] == 'cloud']
+    assert len(clusters) >= 0.8 * counts['total']
+    for fruit in clusters:
         np.testing.assert_allclose(np.median(moved[labels == fruit['id']], axis=0), fruit['center'], atol=1e-5)
         assert fruit['diameter'] > 0
+    for fruit in counts['fruits'][len(clusters):]:   # the masks' fruits follow the clusters, without points
+        assert fruit['source'] == 'masks' and fruit['n_points'] == 0
+    assert counts['stats']['mask_fruits']['added'] == counts['total'] - len(clusters)
     report = json.loads((run / 'export.json').read_text())
     assert report['method'] == 'surface' and report['n_kept'] == len(cloud) > 0
     assert report['n_rays'] >= report['n_opaque'] >= report['n_fruit'] and report['n_multi_view'] >= report['n_kept']
@@ -79,13 +84,35 @@ def test_count_and_eval_subcommands(pipeline_run, tiny_apple_dataset: Path, tmp_
     rc, out, err = _cli(['count', cloud_copy, '--out', tmp_path / 'counts.json'])
     assert rc == 0, err
     total = json.loads((tmp_path / 'counts.json').read_text())['total']
-    assert total == json.loads((run / 'counts.json').read_text())['total']
+    run_counts = json.loads((run / 'counts.json').read_text())
+    # a cloud file alone has no training views: its count is the clusters; the run directory's adds the masks' fruit
+    assert total == sum(f['source'] == 'cloud' for f in run_counts['fruits'])
+    rc, out, err = _cli(['count', run, '--out', tmp_path / 'run_counts.json'])
+    assert rc == 0, err
+    again = json.loads((tmp_path / 'run_counts.json').read_text())
+    assert again['total'] == run_counts['total'] and 'mask_fruits' in again['stats']
     rc, out, err = _cli(['eval', tmp_path / 'counts.json', '--gt', tiny_apple_dataset / 'gt_fruits.json', '--json'])
     assert rc == 0, err
     data = json.loads(out)
     assert {'count', 'gt_count', 'precision', 'recall', 'f1'} <= set(data)
     assert data['count'] == total and data['gt_count'] == 20
     assert_counted(total, 20, data['f1'])
+
+
+def test_a_run_whose_dataset_is_gone_still_counts_its_cloud(pipeline_run, tmp_path: Path, monkeypatch,
+                                                            caplog) -> None:
+    from fruitnerfpp_ros.core import pipeline
+    from fruitnerfpp_ros.errors import DatasetError
+
+    def gone(*args, **kwargs):
+        raise DatasetError('transforms.json: not found')
+
+    run, _ = pipeline_run
+    monkeypatch.setattr(pipeline, 'load_run_views', gone)
+    with caplog.at_level('WARNING', logger='fruitnerfpp_ros.core.pipeline'):
+        count, _, _ = pipeline.count_run(run, out=tmp_path / 'counts.json')
+    assert count.count > 0 and 'mask_fruits' not in count.stats
+    assert 'without the masks' in caplog.text and 'transforms.json: not found' in caplog.text
 
 
 def test_missing_files_are_one_line_errors(tmp_path: Path) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import threading
 from concurrent.futures import Executor
 from dataclasses import dataclass
@@ -32,7 +33,7 @@ from fruitnerfpp_ros.core.export.npz_io import read_cloud, write_npz
 from fruitnerfpp_ros.core.export.ply import write_ply
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.progress import PipelineStage, ProgressCallback, ProgressEvent, ignore_progress
-from fruitnerfpp_ros.errors import ExportError
+from fruitnerfpp_ros.errors import DatasetError, ExportError
 
 __all__ = ['PipelineResult', 'PipelineOutputs', 'RunViews', 'load_run_views', 'run_pipeline',
            'export_run', 'count_run', 'count_cloud',
@@ -43,6 +44,7 @@ COUNTS_FORMAT_VERSION = 1
 CLOUD_PLY, CLOUD_NPZ, COUNTS_JSON, EVAL_JSON, EXPORT_JSON = 'cloud.ply', 'cloud.npz', 'counts.json', 'eval.json', \
     'export.json'
 GT_JSON = 'gt_fruits.json'
+_LOG = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -243,14 +245,13 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
     with the cluster ids, so cloud and counts carry the same ids. ``executor``: where the clustering partitions
     run (see :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process). A trained run
     directory's count also holds the fruit its training views' masks agree on (``cluster_config.masks``), as
-    :func:`run_pipeline`'s does; a cloud file alone has no views to check.
+    :func:`run_pipeline`'s does; a cloud file alone has no views to check, nor a run whose dataset is gone (logged).
 
     Returns:
         (the count, the cloud, the counts.json path).
 
     Raises:
         ExportError: no cloud found / unreadable cloud.
-        DatasetError: the run's dataset cannot be read (for the masks' check).
     """
     from fruitnerfpp_ros.core.training import RunDir
 
@@ -260,7 +261,10 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
     views = None
     if Path(source).is_dir() and (cluster_config or ClusterConfig()).masks.enabled and \
             RunDir(source).latest_checkpoint.is_file():
-        views = load_run_views(source)
+        try:
+            views = load_run_views(source)
+        except DatasetError as err:   # the run's dataset moved or is gone: the cloud is still counted
+            _LOG.warning('%s: counting the cloud alone, without the masks\' fruit: %s', source, err)
     count = count_cloud(cloud, cluster_config, cloud_path=cloud_path, counts_path=counts_path, executor=executor,
                         progress=progress, views=views)
     return count, cloud, counts_path
@@ -367,7 +371,7 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
     cloud, counts_path = exported.cloud, run_dir / COUNTS_JSON
     views = None
     if (cluster_config or ClusterConfig()).masks.enabled and not exported.report.stopped:
-        views = load_run_views(run_dir)
+        views = load_run_views(run_dir, dataset_dir)
     count = count_cloud(cloud, cluster_config, cloud_path=run_dir / CLOUD_PLY, counts_path=counts_path,
                         executor=executor, progress=progress, views=views)
     metrics = None
