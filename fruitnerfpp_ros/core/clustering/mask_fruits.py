@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.tracking.detections import detect_blobs
 
 __all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays',
            'add_mask_fruits']
@@ -113,32 +114,26 @@ def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_
     parts: list[tuple[np.ndarray, ...]] = []
     radius_m = 0.5 * fruit_diameter_m * config.disc_radius_factor
     for view in np.asarray(views.views, np.int64):
-        mask = np.asarray(views.instance_masks[view])
-        T, K = np.asarray(views.T_world_camera[view], np.float64), np.asarray(views.intrinsics[view], np.float64)
-        rows, cols = np.nonzero(mask)
-        if not len(rows):
+        blobs = detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
+        if not len(blobs):
             continue
-        ids, label, pixels = np.unique(mask[rows, cols], return_inverse=True, return_counts=True)
-        discs = _discs(T, K, centers, radius_m, config.disc_margin_px, mask.shape)
-        covered = np.bincount(label, weights=discs[rows, cols], minlength=len(ids))
-        lo_r, hi_r = np.full(len(ids), rows.max()), np.zeros(len(ids), np.int64)
-        lo_c, hi_c = np.full(len(ids), cols.max()), np.zeros(len(ids), np.int64)
-        np.minimum.at(lo_r, label, rows), np.maximum.at(hi_r, label, rows)
-        np.minimum.at(lo_c, label, cols), np.maximum.at(hi_c, label, cols)
-        keep = (pixels >= config.min_mask_pixels) & (covered < config.explained_share * pixels)
+        T, K = np.asarray(views.T_world_camera[view], np.float64), np.asarray(views.intrinsics[view], np.float64)
+        discs = _discs(T, K, centers, radius_m, config.disc_margin_px, blobs.labels.shape)
+        covered = np.bincount(blobs.labels.ravel(), weights=discs.ravel(), minlength=len(blobs) + 1)[1:]
+        keep = (blobs.areas_px >= config.min_mask_pixels) & (covered < config.explained_share * blobs.areas_px)
         if not keep.any():
             continue
-        u = np.bincount(label, weights=cols, minlength=len(ids))[keep] / pixels[keep] + 0.5
-        v = np.bincount(label, weights=rows, minlength=len(ids))[keep] / pixels[keep] + 0.5
+        u, v = blobs.centroids_px[keep].T
         cam = np.stack([(u - K[2]) / K[0], -(v - K[3]) / K[1], -np.ones_like(u)], 1)
         direction = cam @ T[:3, :3].T
         direction /= np.linalg.norm(direction, axis=1, keepdims=True)
-        extent = np.maximum(hi_r - lo_r, hi_c - lo_c)[keep] + 1.0
+        boxes = blobs.boxes_px[keep]
+        extent = np.maximum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]).astype(np.float64)
         # a whole fruit spans `extent` pixels at depth f d / extent; the ray's length is longer off the axis
         axis_cos = 1.0 / np.linalg.norm(cam, axis=1)
         max_depth = config.max_depth_factor * K[0] * fruit_diameter_m / extent / axis_cos
         parts.append((np.full(len(u), view), np.broadcast_to(T[:3, 3], (len(u), 3)), direction, max_depth,
-                      pixels[keep]))
+                      blobs.areas_px[keep].astype(np.int64)))
     if not parts:
         return MaskRays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64))
     return MaskRays(*(np.concatenate([p[i] for p in parts]) for i in range(5)))
