@@ -139,25 +139,33 @@ def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_
     return MaskRays(*(np.concatenate([p[i] for p in parts]) for i in range(5)))
 
 
-def _pair_points(rays: MaskRays, gap_m: float, near_m: float) -> np.ndarray:
+def _pair_points(rays: MaskRays, gap_m: float, near_m: float, chunk_pairs: int = 1_000_000) -> np.ndarray:
     """[P, 3] midpoints of the closest approach of every two rays of different views that pass within ``gap_m``,
-    in front of both cameras (``near_m``) and within both farthest depths."""
-    a, b = np.triu_indices(len(rays), 1)
-    a, b = a[rays.view[a] != rays.view[b]], b[rays.view[a] != rays.view[b]]
+    in front of both cameras (``near_m``) and within both farthest depths. Pairs are formed a block of rays at a
+    time (about ``chunk_pairs`` at once: memory stays bounded on a 300-view scene)."""
+    n = len(rays)
     O, D = rays.origin, rays.direction
-    w = O[a] - O[b]
-    cos = np.einsum('ij,ij->i', D[a], D[b])
-    da, db = np.einsum('ij,ij->i', D[a], w), np.einsum('ij,ij->i', D[b], w)
-    denominator = 1.0 - cos * cos
-    crossing = denominator > 1e-4                     # rays that are not parallel (a baseline to triangulate on)
-    a, b, cos, da, db, denominator = a[crossing], b[crossing], cos[crossing], da[crossing], db[crossing], \
-        denominator[crossing]
-    s = (cos * db - da) / denominator                 # distance along ray a
-    t = (db - cos * da) / denominator                 # distance along ray b
-    pa, pb = O[a] + s[:, None] * D[a], O[b] + t[:, None] * D[b]
-    good = (np.linalg.norm(pa - pb, axis=1) < gap_m) & (s > near_m) & (t > near_m) & (s < rays.max_depth[a]) \
-        & (t < rays.max_depth[b])
-    return 0.5 * (pa[good] + pb[good])
+    block = max(1, chunk_pairs // max(n, 1))
+    points = []
+    for start in range(0, n, block):
+        a, b = np.nonzero(np.arange(n)[None, :] > np.arange(start, min(n, start + block))[:, None])
+        a += start
+        keep = rays.view[a] != rays.view[b]
+        a, b = a[keep], b[keep]
+        w = O[a] - O[b]
+        cos = np.einsum('ij,ij->i', D[a], D[b])
+        da, db = np.einsum('ij,ij->i', D[a], w), np.einsum('ij,ij->i', D[b], w)
+        denominator = 1.0 - cos * cos
+        crossing = denominator > 1e-4                 # rays that are not parallel (a baseline to triangulate on)
+        a, b, cos, da, db, denominator = a[crossing], b[crossing], cos[crossing], da[crossing], db[crossing], \
+            denominator[crossing]
+        s = (cos * db - da) / denominator             # distance along ray a
+        t = (db - cos * da) / denominator             # distance along ray b
+        pa, pb = O[a] + s[:, None] * D[a], O[b] + t[:, None] * D[b]
+        good = (np.linalg.norm(pa - pb, axis=1) < gap_m) & (s > near_m) & (t > near_m) & \
+            (s < rays.max_depth[a]) & (t < rays.max_depth[b])
+        points.append(0.5 * (pa[good] + pb[good]))
+    return np.concatenate(points) if points else np.zeros((0, 3))
 
 
 def _support(candidates: np.ndarray, rays: MaskRays, reach_m: float, near_m: float,

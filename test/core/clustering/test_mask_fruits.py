@@ -119,3 +119,11 @@ def test_the_settings_are_checked_and_nested_in_the_clustering_config() -> None:
     with pytest.raises(ConfigError):
         MaskFruitConfig(explained_share=0.0)
     assert ClusterConfig().masks == MaskFruitConfig()
+
+
+def test_rays_paired_a_block_at_a_time_meet_where_all_at_once_do(views: MaskViews) -> None:
+    from fruitnerfpp_ros.core.clustering.mask_fruits import _pair_points, unexplained_mask_rays
+    rays = unexplained_mask_rays(views, FRUITS[:3], DIAMETER, MaskFruitConfig())
+    assert len(rays) >= 10
+    whole = _pair_points(rays, 0.5 * DIAMETER, 0.1, chunk_pairs=10 ** 8)
+    assert len(whole) >= 10 and np.array_equal(_pair_points(rays, 0.5 * DIAMETER, 0.1, chunk_pairs=5), whole)
