@@ -99,13 +99,14 @@ def test_count_and_eval_subcommands(pipeline_run, tiny_apple_dataset: Path, tmp_
     assert_counted(total, 20, data['f1'])
 
 
-def test_a_run_whose_dataset_is_gone_still_counts_its_cloud(pipeline_run, tmp_path: Path, monkeypatch,
-                                                            caplog) -> None:
+@pytest.mark.parametrize('error', ['DatasetError', 'CheckpointError'])
+def test_a_run_whose_dataset_is_gone_still_counts_its_cloud(pipeline_run, tmp_path: Path, monkeypatch, caplog,
+                                                            error: str) -> None:
+    from fruitnerfpp_ros import errors
     from fruitnerfpp_ros.core import pipeline
-    from fruitnerfpp_ros.errors import DatasetError
 
-    def gone(*args, **kwargs):
-        raise DatasetError('transforms.json: not found')
+    def gone(*args, **kwargs):   # the dataset moved away, or a checkpoint of another release
+        raise getattr(errors, error)('transforms.json: not found')
 
     run, _ = pipeline_run
     monkeypatch.setattr(pipeline, 'load_run_views', gone)

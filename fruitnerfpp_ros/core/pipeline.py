@@ -33,7 +33,7 @@ from fruitnerfpp_ros.core.export.npz_io import read_cloud, write_npz
 from fruitnerfpp_ros.core.export.ply import write_ply
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.progress import PipelineStage, ProgressCallback, ProgressEvent, ignore_progress
-from fruitnerfpp_ros.errors import DatasetError, ExportError
+from fruitnerfpp_ros.errors import CheckpointError, DatasetError, ExportError
 
 __all__ = ['PipelineResult', 'PipelineOutputs', 'RunViews', 'load_run_views', 'run_pipeline',
            'export_run', 'count_run', 'count_cloud',
@@ -245,7 +245,8 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
     with the cluster ids, so cloud and counts carry the same ids. ``executor``: where the clustering partitions
     run (see :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process). A trained run
     directory's count also holds the fruit its training views' masks agree on (``cluster_config.masks``), as
-    :func:`run_pipeline`'s does; a cloud file alone has no views to check, nor a run whose dataset is gone (logged).
+    :func:`run_pipeline`'s does; a cloud file alone has no views to check, nor a run whose dataset is gone or whose
+    checkpoint this release cannot read (logged).
 
     Returns:
         (the count, the cloud, the counts.json path).
@@ -263,7 +264,7 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
             RunDir(source).latest_checkpoint.is_file():
         try:
             views = load_run_views(source)
-        except DatasetError as err:   # the run's dataset moved or is gone: the cloud is still counted
+        except (CheckpointError, DatasetError) as err:   # an older run, or its dataset moved: count the cloud
             _LOG.warning('%s: counting the cloud alone, without the masks\' fruit: %s', source, err)
     count = count_cloud(cloud, cluster_config, cloud_path=cloud_path, counts_path=counts_path, executor=executor,
                         progress=progress, views=views)
