@@ -99,6 +99,26 @@ def test_count_and_eval_subcommands(pipeline_run, tiny_apple_dataset: Path, tmp_
     assert_counted(total, 20, data['f1'])
 
 
+def test_the_pipeline_reads_the_dataset_once(tiny_trained_run: Path, tiny_apple_dataset: Path, tmp_path: Path,
+                                             monkeypatch) -> None:
+    from fruitnerfpp_ros.core import pipeline
+    from fruitnerfpp_ros.core.data import dataset as dataset_module
+
+    reads = []
+    original = dataset_module.load_dataset
+
+    def counted(*args, **kwargs):
+        reads.append(args[0] if args else kwargs.get('dataset_dir'))
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(dataset_module, 'load_dataset', counted)
+    run = tmp_path / 'run'
+    shutil.copytree(tiny_trained_run, run)
+    result = pipeline.run_pipeline(tiny_apple_dataset, run, skip_training=True, device='cpu')
+    assert len(reads) == 1, reads          # the surface export and the masks' check share one read
+    assert result.count.count > 0 and 'mask_fruits' in result.count.stats
+
+
 @pytest.mark.parametrize('error', ['DatasetError', 'CheckpointError'])
 def test_a_run_whose_dataset_is_gone_still_counts_its_cloud(pipeline_run, tmp_path: Path, monkeypatch, caplog,
                                                             error: str) -> None:

@@ -158,12 +158,13 @@ def _tqdm_progress(*, skip: PipelineStage = PipelineStage.TRAIN) -> Callable[[Pr
 def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *, device: str = 'auto',
                out: str | Path | None = None, progress: ProgressCallback | None = None,
                stop_event: threading.Event | None = None, write_cloud: bool = True,
-               dataset_dir: str | Path | None = None) -> ExportResult:
+               dataset_dir: str | Path | None = None, dataset: Any = None) -> ExportResult:
     """Export the fruit point cloud of a trained run to ``out`` (default ``RUN_DIR/cloud.ply``) plus ``.npz``.
 
     Also writes ``export.json`` (the export report) next to the cloud. ``write_cloud=False`` leaves the cloud
     files to the caller (:func:`run_pipeline` writes them once, with the cluster ids). The surface export renders
-    the training views of ``dataset_dir`` (default: the dataset the run was trained on).
+    the training views of ``dataset_dir`` (default: the dataset the run was trained on), or of ``dataset`` when the
+    caller has loaded it (a ``SceneDataset``).
 
     Raises:
         CheckpointError: ``run_dir`` is not a trained run.
@@ -179,7 +180,8 @@ def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *
     config = export_config or ExportConfig()
     diameter = scene.fruit_diameter_m
     if config.method == 'surface':
-        dataset = load_dataset(dataset_dir or scene.dataset_dir, eval_every=scene.config.data.eval_every)
+        if dataset is None:
+            dataset = load_dataset(dataset_dir or scene.dataset_dir, eval_every=scene.config.data.eval_every)
         cloud, report = export_surface_cloud(scene.field, scene.occupancy, scene.render_settings, dataset,
                                              scene.poses(dataset.T_world_camera), diameter, config,
                                              progress=progress, stop_event=stop_event)
@@ -217,9 +219,10 @@ class RunViews:
     aabb: np.ndarray
 
 
-def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *, device: str = 'cpu') -> RunViews:
-    """The training views of the run in ``run_dir`` (its dataset, or ``dataset_dir``), with the poses it trained
-    with (refined ones when pose refinement ran).
+def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *, device: str = 'cpu',
+                   dataset: Any = None) -> RunViews:
+    """The training views of the run in ``run_dir`` (its dataset, or ``dataset_dir``, or the ``SceneDataset`` the
+    caller has loaded), with the poses it trained with (refined ones when pose refinement ran).
 
     Raises:
         CheckpointError: ``run_dir`` is not a trained run.
@@ -229,7 +232,8 @@ def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *
     from fruitnerfpp_ros.core.training import load_trained_scene
 
     scene = load_trained_scene(run_dir, device=device)
-    dataset = load_dataset(dataset_dir or scene.dataset_dir, eval_every=scene.config.data.eval_every)
+    if dataset is None:
+        dataset = load_dataset(dataset_dir or scene.dataset_dir, eval_every=scene.config.data.eval_every)
     poses = scene.poses(dataset.T_world_camera).detach().cpu().double().numpy()
     masks = MaskViews(dataset.instance_masks.numpy(), dataset.intrinsics.double().numpy(), poses,
                       dataset.train_indices.numpy())
@@ -367,22 +371,27 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
             empty = FruitPointCloud.empty(0)
             return PipelineResult(run_dir, empty, None, CountResult(np.zeros(0, np.int32), [], {}), None,
                                   PipelineOutputs(None, None, None, None, None), stopped=True, train_summary=summary)
+    from fruitnerfpp_ros.core.config_io import load_config
+    from fruitnerfpp_ros.core.data.dataset import load_dataset
+    from fruitnerfpp_ros.core.training import RunDir, TrainConfig
+
+    eval_every = load_config(TrainConfig, RunDir(run_dir).config_path).data.eval_every
+    masks = (cluster_config or ClusterConfig()).masks.enabled
+    dataset = None   # read once: the surface export renders its views, the count checks its masks
+    if masks or (export_config or ExportConfig()).method == 'surface':
+        dataset = load_dataset(dataset_dir, eval_every=eval_every)
     exported = export_run(run_dir, export_config, device=device, progress=progress, stop_event=stop_event,
-                          write_cloud=False)
+                          write_cloud=False, dataset=dataset)
     cloud, counts_path = exported.cloud, run_dir / COUNTS_JSON
     views = None
-    if (cluster_config or ClusterConfig()).masks.enabled and not exported.report.stopped:
-        views = load_run_views(run_dir, dataset_dir)
+    if masks and not exported.report.stopped:
+        views = load_run_views(run_dir, dataset=dataset)
     count = count_cloud(cloud, cluster_config, cloud_path=run_dir / CLOUD_PLY, counts_path=counts_path,
                         executor=executor, progress=progress, views=views)
     metrics = None
     eval_path = None
     gt_path = dataset_dir / GT_JSON
     if gt_path.is_file():
-        from fruitnerfpp_ros.core.config_io import load_config
-        from fruitnerfpp_ros.core.training import RunDir, TrainConfig
-
-        eval_every = load_config(TrainConfig, RunDir(run_dir).config_path).data.eval_every
         eval_path = run_dir / EVAL_JSON
         metrics = evaluate_run(counts_path, gt_path, out=eval_path, centers=count.centers(),
                                train_views=training_views(dataset_dir, eval_every, gt_path))

@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.tracking.camera import PinholeView, triangulate
 from fruitnerfpp_ros.core.tracking.detections import detect_blobs
 
 __all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays',
@@ -84,25 +85,24 @@ class MaskRays:
         return len(self.view)
 
 
-def _project(T: np.ndarray, K: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(u, v, depth along the viewing axis) of ``points`` [N, 3] in a view with camera-to-world ``T``."""
-    cam = (points - T[:3, 3]) @ T[:3, :3]
-    depth = -cam[:, 2]
-    safe = np.where(depth > 1e-9, depth, 1.0)
-    return K[0] * cam[:, 0] / safe + K[2], -K[1] * cam[:, 1] / safe + K[3], depth
+def _view(views: MaskViews, view: int) -> PinholeView:
+    """View ``view`` of ``views`` as the tracking package's pinhole camera (the masks are undistorted)."""
+    fx, fy, cx, cy = (float(v) for v in views.intrinsics[view])
+    height, width = views.instance_masks.shape[1:3]
+    return PinholeView(np.asarray(views.T_world_camera[view], np.float64), fx, fy, cx, cy, width, height)
 
 
-def _discs(T: np.ndarray, K: np.ndarray, centers: np.ndarray, radius_m: float, margin_px: float,
-           shape: tuple[int, int]) -> np.ndarray:
+def _discs(camera: PinholeView, centers: np.ndarray, radius_m: float, margin_px: float) -> np.ndarray:
     """[H, W] uint8 image, 1 on the projected discs (radius ``radius_m`` there, plus ``margin_px``) of the fruits at
     ``centers``."""
-    height, width = shape
-    image = np.zeros(shape, np.uint8)
+    image = np.zeros((camera.height, camera.width), np.uint8)
     if not len(centers):
         return image
-    u, v, depth = _project(T, K, centers)
-    radius = radius_m * K[0] / np.maximum(depth, 1e-9) + margin_px
-    near = (depth > 1e-6) & (u + radius >= 0) & (u - radius < width) & (v + radius >= 0) & (v - radius < height)
+    uv, depth = camera.project(centers)                  # NaN behind the camera: no disc
+    radius = radius_m * camera.fl_x / np.maximum(depth, 1e-9) + margin_px
+    u, v = uv.T
+    near = (depth > 1e-6) & (u + radius >= 0) & (u - radius < camera.width) & (v + radius >= 0) & \
+        (v - radius < camera.height)
     for x, y, r in zip(u[near], v[near], radius[near]):   # one filled circle per fruit in view (sub-pixel, 2 bits)
         cv2.circle(image, (int(round(x * 4)), int(round(y * 4))), max(1, int(round(r * 4))), 1, -1, shift=2)
     return image
@@ -117,23 +117,19 @@ def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_
         blobs = detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
         if not len(blobs):
             continue
-        T, K = np.asarray(views.T_world_camera[view], np.float64), np.asarray(views.intrinsics[view], np.float64)
-        discs = _discs(T, K, centers, radius_m, config.disc_margin_px, blobs.labels.shape)
+        camera = _view(views, view)
+        discs = _discs(camera, centers, radius_m, config.disc_margin_px)
         covered = np.bincount(blobs.labels.ravel(), weights=discs.ravel(), minlength=len(blobs) + 1)[1:]
         keep = (blobs.areas_px >= config.min_mask_pixels) & (covered < config.explained_share * blobs.areas_px)
         if not keep.any():
             continue
-        u, v = blobs.centroids_px[keep].T
-        cam = np.stack([(u - K[2]) / K[0], -(v - K[3]) / K[1], -np.ones_like(u)], 1)
-        direction = cam @ T[:3, :3].T
-        direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+        direction, range_per_depth = camera.rays(blobs.centroids_px[keep])
         boxes = blobs.boxes_px[keep]
         extent = np.maximum(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]).astype(np.float64)
         # a whole fruit spans `extent` pixels at depth f d / extent; the ray's length is longer off the axis
-        axis_cos = 1.0 / np.linalg.norm(cam, axis=1)
-        max_depth = config.max_depth_factor * K[0] * fruit_diameter_m / extent / axis_cos
-        parts.append((np.full(len(u), view), np.broadcast_to(T[:3, 3], (len(u), 3)), direction, max_depth,
-                      blobs.areas_px[keep].astype(np.int64)))
+        max_depth = config.max_depth_factor * camera.fl_x * fruit_diameter_m / extent * range_per_depth
+        parts.append((np.full(len(direction), view), np.broadcast_to(camera.origin, (len(direction), 3)), direction,
+                      max_depth, blobs.areas_px[keep].astype(np.int64)))
     if not parts:
         return MaskRays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64))
     return MaskRays(*(np.concatenate([p[i] for p in parts]) for i in range(5)))
@@ -208,12 +204,9 @@ def triangulate_mask_rays(rays: MaskRays, fruit_diameter_m: float, aabb: np.ndar
             break
         members = support[best].indices[unused[support[best].indices] > 0]
         unused[members] = 0.0
-        # least-squares point of the members' rays: sum (I - d d^T) x = sum (I - d d^T) o
-        direction, origin = rays.direction[members], rays.origin[members]
-        P = np.eye(3)[None] - direction[:, :, None] * direction[:, None, :]
-        x = np.linalg.lstsq(P.sum(0), np.einsum('nij,nj->i', P, origin), rcond=None)[0]
-        others = np.vstack([np.asarray(centers, np.float64).reshape(-1, 3)] + added) if len(centers) or added \
-            else np.zeros((0, 3))
+        none = np.zeros(len(members))                     # the point nearest the members' rays, no range prior
+        x = triangulate(rays.origin[members], rays.direction[members], none, none + 1.0, none).point
+        others = np.vstack([np.asarray(centers, np.float64).reshape(-1, 3), *added])
         if not len(others) or np.min(np.linalg.norm(others - x, axis=1)) >= separation:
             added.append(x[None])
     return np.vstack(added) if added else np.zeros((0, 3))
