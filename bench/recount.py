@@ -28,9 +28,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 from pathlib import Path
-from typing import NamedTuple
+from typing import Callable, NamedTuple
 
 import numpy as np
 
@@ -45,7 +46,7 @@ from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.orchard.jobs import read_segment_result, segment_fruits, write_segment_result
-from fruitnerfpp_ros.core.pipeline import load_run_views
+from fruitnerfpp_ros.core.pipeline import RunViews, load_run_views
 from fruitnerfpp_ros.core.training import TrainConfig
 
 
@@ -83,14 +84,14 @@ def _variants(base: ClusterConfig, texts: list[str]) -> dict[str, Variant]:
     return out
 
 
-def _count(cloud: FruitPointCloud, config: ClusterConfig, run_dir: Path, dataset_dir: Path) -> CountResult:
+def _count(cloud: FruitPointCloud, config: ClusterConfig, views: Callable[[], RunViews]) -> CountResult:
     """The cloud's count as the pipeline makes it: the clusters, plus the fruit the run's training views' masks
-    agree on (``masks.enabled``)."""
+    agree on (``masks.enabled``; ``views`` loads them, once per run)."""
     count = count_fruits(cloud, config)
     if not config.masks.enabled:
         return count
-    views = load_run_views(run_dir, dataset_dir)
-    return add_mask_fruits(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks)
+    run_views = views()
+    return add_mask_fruits(count, run_views.masks, run_views.fruit_diameter_m, run_views.aabb, config.masks)
 
 
 def _cloud(run_dir: Path, export: tuple[tuple[str, int | float | str], ...], scratch: Path) -> FruitPointCloud:
@@ -111,7 +112,8 @@ def _scene_counts(scene_dir: Path, variants: dict[str, Variant], scratch: Path) 
     gt = scored_ground_truth(scene_dir / 'data' / 'gt_fruits.json', keyframes if keyframes.is_dir() else
                              scene_dir / 'data', scene_dir / 'run', TrainConfig().data.eval_every)
     dataset = keyframes if keyframes.is_dir() else scene_dir / 'data'
-    counts = {name: _count(clouds[v.export], v.cluster, scene_dir / 'run', dataset) for name, v in variants.items()}
+    views = functools.cache(lambda: load_run_views(scene_dir / 'run', dataset))      # one read for all variants
+    counts = {name: _count(clouds[v.export], v.cluster, views) for name, v in variants.items()}
     return {name: (c.count, float(evaluate_counts(c.centers(), gt).f1)) for name, c in counts.items()}
 
 
@@ -140,7 +142,8 @@ def recount_row(run: Path, copy: Path, variant: Variant) -> None:
             continue
         fruits, record = done
         cloud = _cloud(seg / 'run', variant.export, copy / 'segments' / seg.name / 'cloud')
-        fruits = segment_fruits(fruits.segment, _count(cloud, variant.cluster, seg / 'run', seg / 'dataset'))
+        count = _count(cloud, variant.cluster, lambda: load_run_views(seg / 'run', seg / 'dataset'))
+        fruits = segment_fruits(fruits.segment, count)
         info = {k: v for k, v in record.items() if k not in ('segment', 'fruits')}
         (copy / 'segments' / seg.name).mkdir(parents=True, exist_ok=True)
         write_segment_result(copy / 'segments' / seg.name, fruits, **info)
