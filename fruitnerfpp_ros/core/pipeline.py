@@ -236,7 +236,7 @@ def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *
         dataset = load_dataset(dataset_dir or scene.dataset_dir, eval_every=scene.config.data.eval_every)
     poses = scene.poses(dataset.T_world_camera).detach().cpu().double().numpy()
     masks = MaskViews(dataset.instance_masks.numpy(), dataset.intrinsics.double().numpy(), poses,
-                      dataset.train_indices.numpy())
+                      dataset.train_indices.numpy(), dataset.mask_source)
     return RunViews(masks, scene.fruit_diameter_m, np.asarray(scene.aabb, np.float64))
 
 

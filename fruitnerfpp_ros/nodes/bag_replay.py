@@ -186,7 +186,8 @@ def collect_keyframes(bag_path: str | Path, keyframes_dir: str | Path, settings:
     """
     if not Path(bag_path).exists():
         raise BagError(f'{bag_path}: no such bag (a rosbag2 directory or an .mcap / .db3 file)')
-    store = KeyframeStore(keyframes_dir, keyframe_config(settings), resume_after_newest=resume)
+    store = KeyframeStore(keyframes_dir, keyframe_config(settings), resume_after_newest=resume,
+                          mask_source=settings.mask_source)
     assembler = FrameAssembler(settings, store, log)
     read_bag_into(assembler, bag_path, settings, log=log, stop_event=stop_event)
     return assembler
@@ -267,7 +268,8 @@ def _collect(bag_path: Path, run_dir: Path, settings: CounterSettings, log: LogF
         keyframes_dir.rename(previous)
         log(LogLevel.INFO, f'{keyframes_dir} existed: moved to {previous}')
     (run_dir / COLLECTION_NAME).unlink(missing_ok=True)
-    store = KeyframeStore(keyframes_dir, keyframe_config(settings), resume_after_newest=resume)
+    store = KeyframeStore(keyframes_dir, keyframe_config(settings), resume_after_newest=resume,
+                          mask_source=settings.mask_source)
     if resume and len(store):
         log(LogLevel.INFO, f'{keyframes_dir}: resuming the collection after its {len(store)} keyframe(s)')
     assembler = FrameAssembler(settings, store, log)

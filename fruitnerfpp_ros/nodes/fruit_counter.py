@@ -82,7 +82,7 @@ class FruitCounterNode(Node):
         row_values = settings_mapping(self.row_settings) if self.row_settings.row_mode else {}
         (self.run_dir / 'params.yaml').write_text(yaml.safe_dump(
             {'/**': {'ros__parameters': {**settings_mapping(s), **row_values}}}, sort_keys=False))
-        self.store = KeyframeStore(self.run_dir / 'keyframes', keyframe_config(s))
+        self.store = KeyframeStore(self.run_dir / 'keyframes', keyframe_config(s), mask_source=s.mask_source)
         self.assembler = FrameAssembler(s, self.store, self._log, mask_source=mask_source)
         self._warn_throttled = ThrottledLog(self._log, period_s=30.0)
 

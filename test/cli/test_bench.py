@@ -33,6 +33,9 @@ def test_micro_scene_with_fallback_masks(tmp_path: Path, monkeypatch: pytest.Mon
     assert scene['times_s']['segment'] > 0  # the fallback segmenter replaced the ground-truth masks
     transforms = json.loads((out / 'micro' / 'data' / 'transforms.json').read_text())
     assert transforms['frames'][0]['instance_path'].startswith('instances/')
+    assert transforms['mask_source'] == 'fallback'
+    counts = json.loads((out / 'micro' / 'run' / 'counts.json').read_text())
+    assert counts['stats']['mask_fruits'] == {'added': 0, 'skipped_mask_source': 'fallback'}
     assert 'quick suite: 1 scene(s), preset tiny, masks fallback, device cpu' in printed.out
     assert 'micro: count ' in printed.out + printed.err and 'tables: ' in printed.out
     section = log.read_text()

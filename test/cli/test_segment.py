@@ -49,6 +49,7 @@ def test_segmented_dataset_loads(unmasked: Path, capsys: pytest.CaptureFixture[s
     dataset = load_dataset(unmasked)
     assert dataset.instance_masks.shape == (4, 64, 80) and int(dataset.instance_masks.max()) >= 1
     assert np.array_equal(dataset.semantic_masks.numpy(), dataset.instance_masks.numpy() > 0)
+    assert dataset.mask_source == 'fallback'          # what the count's masks step checks
     assert not list(unmasked.rglob('*.tmp*'))
 
 
@@ -89,8 +90,15 @@ def test_frames_naming_deleted_masks_get_new_ones(tmp_path: Path, capsys: pytest
     from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
     dataset = tmp_path / 'apples'
     generate_orchard(SynthConfig(fruit='apple', count=8, views=3, resolution=(64, 64), seed=1), dataset)
+    assert read_transforms(dataset).mask_source == 'ground_truth'
     shutil.rmtree(dataset / 'instances')
     shutil.rmtree(dataset / 'semantics')
     assert main(['segment', str(dataset), '--quiet']) == 0
     assert 'segmented 3 images' in capsys.readouterr().out
     assert load_dataset(dataset).instance_masks.shape == (3, 64, 64)
+    assert read_transforms(dataset).mask_source == 'fallback'
+    from fruitnerfpp_ros.core.segmentation.dataset_masks import segment_dataset
+    segment_dataset(dataset, lambda rgb: np.zeros(rgb.shape[:2], np.uint16), overwrite=True)
+    assert read_transforms(dataset).mask_source is None       # a segmenter that does not name itself: unknown
+    segment_dataset(dataset, lambda rgb: np.zeros(rgb.shape[:2], np.uint16), overwrite=True, mask_source='mine')
+    assert load_dataset(dataset).mask_source == 'mine'

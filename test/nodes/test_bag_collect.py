@@ -35,6 +35,7 @@ def test_clean_bag_gives_every_frame_with_exact_pose(tmp_path: Path, storage: st
     assert np.allclose(data.frames[3].T_world_camera, opengl_from_optical(bf.frame_pose(3)))
     assert (data.intrinsics.cx, data.intrinsics.fl_x) == (bf.INTRINSICS.cx, bf.INTRINSICS.fl_x)
     assert assembler.status().errors == {}
+    assert data.mask_source == 'topic'                 # the count's masks step reads where the masks came from
 
 
 def test_tf_pose_source_reads_tf_from_the_bag(tmp_path: Path) -> None:

@@ -38,6 +38,10 @@ class MaskFruitConfig:
     """No fruit is added this close (in fruit diameters) to a counted or an added one."""
     min_camera_distance_m: float = 0.1
     """A fruit lies at least this far in front of each camera that sees it."""
+    skip_mask_sources: tuple[str, ...] = ('fallback',)
+    """Masks of these sources (the dataset's ``mask_source``; a joined one when any of its parts is listed) add
+    nothing: the built-in colour segmenter merges fruit and marks leaves, and its unexplained masks agree where no
+    fruit hangs (4 ``cpu`` scenes with its masks: mean F1 0.774 without the step, 0.726 with it)."""
 
     def __post_init__(self) -> None:
         checks = [(self.min_mask_pixels >= 1, 'min_mask_pixels must be >= 1'),

@@ -21,6 +21,9 @@ the training views. This step, run after the clustering, looks for them:
    a fruit at the least-squares point of its rays, its rays are used up, and the next is taken, until none has the
    support left: each mask explains one fruit at most, so two fruits' rays crossing by chance cannot outvote them.
 
+Masks whose source ``skip_mask_sources`` lists (the dataset's ``mask_source``: the built-in colour segmenter's by
+default) add nothing: they mark leaves and merge fruit, and their unexplained masks agree where no fruit hangs.
+
 Everything is in metres and fruit diameters; nothing depends on the scene box's size. The added fruits have no
 cloud points (``n_points`` 0, ``source`` ``masks``): counts, centres and markers hold them, the instance cloud does
 not.
@@ -29,6 +32,7 @@ not.
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass
 
 import cv2
@@ -42,7 +46,9 @@ from fruitnerfpp_ros.core.tracking.camera import PinholeView, triangulate
 from fruitnerfpp_ros.core.tracking.detections import detect_blobs
 
 __all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays',
-           'add_mask_fruits']
+           'add_mask_fruits', 'skipped_mask_source']
+
+_LOG = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -55,12 +61,14 @@ class MaskViews:
         T_world_camera: [V, 4, 4] camera-to-world poses, OpenGL camera axes (x right, y up, looking along -z): the
             poses the field was trained with (refined ones when pose refinement ran).
         views: indices of the views to use (the training views).
+        mask_source: where the masks came from (the dataset's ``mask_source``), None when unknown.
     """
 
     instance_masks: np.ndarray
     intrinsics: np.ndarray
     T_world_camera: np.ndarray
     views: np.ndarray
+    mask_source: str | None = None
 
 
 @dataclass(frozen=True)
@@ -212,12 +220,26 @@ def triangulate_mask_rays(rays: MaskRays, fruit_diameter_m: float, aabb: np.ndar
     return np.vstack(added) if added else np.zeros((0, 3))
 
 
+def skipped_mask_source(mask_source: str | None, config: MaskFruitConfig) -> str | None:
+    """The part of ``mask_source`` (``fallback``, or a joined ``fallback+topic``) that ``config`` does not use, or
+    None when its masks are used (an unknown source included)."""
+    parts = str(mask_source or '').split('+')
+    return next((p for p in parts if p in config.skip_mask_sources), None)
+
+
 def add_mask_fruits(count: CountResult, views: MaskViews, fruit_diameter_m: float, aabb: np.ndarray | None,
                     config: MaskFruitConfig) -> CountResult:
     """``count`` with the fruits its unexplained masks agree on appended (ids after the clusters', ``n_points`` 0,
-    ``source`` ``masks``); ``stats['mask_fruits']`` says how many and from how many unexplained masks."""
+    ``source`` ``masks``); ``stats['mask_fruits']`` says how many and from how many unexplained masks, or why the
+    masks were not used."""
     if not config.enabled or not fruit_diameter_m > 0:
         return count
+    skipped = skipped_mask_source(views.mask_source, config)
+    if skipped is not None:
+        _LOG.info('masks from %r (mask_source %r) add no fruit (clustering.masks.skip_mask_sources)', skipped,
+                  views.mask_source)
+        return dataclasses.replace(count, stats={**count.stats, 'mask_fruits': {
+            'added': 0, 'skipped_mask_source': views.mask_source}})
     centers = count.centers()
     rays = unexplained_mask_rays(views, centers, fruit_diameter_m, config)
     found = triangulate_mask_rays(rays, fruit_diameter_m, aabb, centers, config)

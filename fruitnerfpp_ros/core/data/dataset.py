@@ -47,6 +47,8 @@ class SceneDataset:
             ``mask_path``); None when every pixel is valid.
         depths: [V, H, W] float32 depth along the optical axis, metres, 0 = no return (and for views without a
             depth image); None when no frame has one.
+        mask_source: where the instance masks came from (transforms.json's ``mask_source``: ``fallback``,
+            ``topic``, ``ground_truth``...), None when it does not say.
     """
 
     dataset_dir: Path
@@ -61,6 +63,7 @@ class SceneDataset:
     file_paths: tuple[str, ...] = ()
     valid_masks: torch.Tensor | None = None
     depths: torch.Tensor | None = None
+    mask_source: str | None = None
 
     @property
     def num_views(self) -> int:
@@ -243,6 +246,7 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
         file_paths=tuple(frame.file_path for frame in transforms.frames),
         valid_masks=None if all(v.all() for v in valids) else torch.from_numpy(np.stack(valids)),
         depths=_stacked_depths(depths),
+        mask_source=transforms.mask_source,
     )
 
 

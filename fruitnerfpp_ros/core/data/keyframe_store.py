@@ -40,8 +40,9 @@ import numpy as np
 from fruitnerfpp_ros.core.data.depth_image import DEPTH_PNG_UNIT_M, write_depth_png
 from fruitnerfpp_ros.core.data.keyframe_journal import JournalEntry, append_entry, read_entries, trim_torn_tail
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, write_uint16_png
-from fruitnerfpp_ros.core.data.transforms_format import (TRANSFORMS_NAME, CameraIntrinsics, FrameEntry,
-                                                         TransformsFile, read_transforms, write_transforms)
+from fruitnerfpp_ros.core.data.transforms_format import (MASK_SOURCE_KEY, TRANSFORMS_NAME, CameraIntrinsics,
+                                                         FrameEntry, TransformsFile, joined_mask_source,
+                                                         read_transforms, write_transforms)
 from fruitnerfpp_ros.core.geometry import opengl_from_optical, optical_from_opengl
 from fruitnerfpp_ros.errors import ConfigError, DatasetError
 
@@ -169,6 +170,9 @@ class KeyframeStore:
         index_period_s: once ``index_every_frame_below`` keyframes are stored, transforms.json is rewritten at
             most this often (the journal holds every keyframe meanwhile).
         index_every_frame_below: rewrite transforms.json after every keyframe while there are fewer.
+        mask_source: where the keyframes' instance masks come from (``topic``, ``fallback``...), recorded as
+            transforms.json's ``mask_source``; resumed keyframes of another source make it a joined one
+            (``fallback+topic``).
 
     Attributes:
         rejected: frames not kept, per decision.
@@ -178,8 +182,10 @@ class KeyframeStore:
 
     def __init__(self, directory: str | Path, config: KeyframeConfig = KeyframeConfig(), *,
                  resume_after_newest: bool = False, index_period_s: float = 2.0,
-                 index_every_frame_below: int = 200) -> None:
+                 index_every_frame_below: int = 200, mask_source: str | None = None) -> None:
         self.directory = Path(directory)
+        self._new_mask_source = mask_source
+        self._mask_source = mask_source
         self.config = config
         self.index_period_s = index_period_s
         self.index_every_frame_below = index_every_frame_below
@@ -205,6 +211,8 @@ class KeyframeStore:
                 existing = read_transforms(self.directory)
                 self._frames = list(existing.frames)
                 self._intrinsics = existing.intrinsics
+                if self._frames:
+                    self._mask_source = joined_mask_source(existing.mask_source, self._new_mask_source)
             except DatasetError:
                 pass  # an empty or broken index: the journal holds the frames
         recovered = 0
@@ -352,8 +360,10 @@ class KeyframeStore:
 
     def _transforms(self, frames: list[FrameEntry]) -> TransformsFile:
         depth_unit = DEPTH_PNG_UNIT_M if any(f.depth_path for f in frames) else None
-        return TransformsFile(self._intrinsics, frames, extra={'generator': 'fruitnerfpp_ros keyframes'},
-                              depth_unit_scale_factor=depth_unit)
+        extra: dict[str, str] = {'generator': 'fruitnerfpp_ros keyframes'}
+        if self._mask_source:
+            extra[MASK_SOURCE_KEY] = self._mask_source
+        return TransformsFile(self._intrinsics, frames, extra=extra, depth_unit_scale_factor=depth_unit)
 
     def snapshot(self, dataset_dir: str | Path) -> KeyframeSnapshot:
         """Write a frozen transforms.json in ``dataset_dir`` that points at the current keyframes' files.
@@ -398,6 +408,7 @@ class KeyframeStore:
             self._stamps = set()
             self._intrinsics = None
             self._last_T = None
+            self._mask_source = self._new_mask_source
             self.resume_after_ns = None
             self.rejected = {d: 0 for d in self.rejected}
             self._open()

@@ -16,6 +16,10 @@ Layout of a dataset directory::
 ``transform_matrix`` is camera-to-world with OpenGL camera axes (x right, y up, z back); ``cx, cy`` put the
 image's top-left corner at (0, 0). Intrinsics are global keys, and a frame may override them with its own
 ``fl_x, fl_y, cx, cy, w, h`` keys (as nerfstudio allows). Paths are relative to the dataset directory.
+
+The top-level ``mask_source`` key says where the instance masks came from (:data:`MASK_SOURCE_KEY`): the
+segmenter's method (``fallback``, ``torchscript``, ``sam``), ``topic`` (a node's mask topic), ``ground_truth``
+(``fruitnerfpp synth``); several joined by ``+`` when a collection mixes them; absent when unknown.
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.errors import DatasetError
 
 __all__ = ['CameraIntrinsics', 'FrameEntry', 'TransformsFile', 'read_transforms', 'write_transforms',
-           'TRANSFORMS_NAME', 'DEFAULT_DEPTH_UNIT_M', 'depth_path_of']
+           'TRANSFORMS_NAME', 'DEFAULT_DEPTH_UNIT_M', 'depth_path_of', 'MASK_SOURCE_KEY', 'joined_mask_source']
 
 TRANSFORMS_NAME = 'transforms.json'
 #: Metres per stored depth unit when transforms.json gives no ``depth_unit_scale_factor`` (nerfstudio's default:
@@ -39,6 +43,8 @@ TRANSFORMS_NAME = 'transforms.json'
 DEFAULT_DEPTH_UNIT_M = 1e-3
 #: Frame keys naming a depth image: nerfstudio's ``depth_file_path`` (written) and ``depth_path`` (read too).
 _DEPTH_KEYS = ('depth_file_path', 'depth_path')
+#: Top-level key naming where the instance masks came from (module doc).
+MASK_SOURCE_KEY = 'mask_source'
 _INTRINSIC_KEYS = ('fl_x', 'fl_y', 'cx', 'cy', 'w', 'h')
 _DISTORTION_KEYS = ('k1', 'k2', 'k3', 'k4', 'p1', 'p2')
 
@@ -123,6 +129,13 @@ class FrameEntry:
         return out
 
 
+def joined_mask_source(*sources: str | None) -> str | None:
+    """One ``mask_source`` value for masks of several sources: the distinct known ones, sorted, joined by ``+``
+    (``'fallback+topic'``); None when none is known."""
+    parts = sorted({p for s in sources if s for p in str(s).split('+') if p})
+    return '+'.join(parts) if parts else None
+
+
 def depth_path_of(raw: dict[str, Any]) -> str | None:
     """The depth image a raw transforms.json frame names (``depth_file_path`` or ``depth_path``), or None."""
     for key in _DEPTH_KEYS:
@@ -149,6 +162,12 @@ class TransformsFile:
     ply_file_path: str | None = None
     extra: dict[str, Any] = field(default_factory=dict)
     depth_unit_scale_factor: float | None = None
+
+    @property
+    def mask_source(self) -> str | None:
+        """Where the instance masks came from (``mask_source``, module doc), or None when unknown."""
+        value = self.extra.get(MASK_SOURCE_KEY)
+        return str(value) if value else None
 
     @property
     def depth_unit_m(self) -> float:

@@ -2,7 +2,9 @@
 
 For frame ``images/0007.png`` the masks go to ``instances/0007.png`` (16-bit ids, 0 = background) and
 ``semantics/0007.png`` (8-bit, fruit = 255); the frame's ``instance_path`` / ``semantic_path`` are set and
-transforms.json is rewritten atomically once every image is done (an interrupted run leaves it unchanged).
+transforms.json is rewritten atomically once every image is done (an interrupted run leaves it unchanged), with
+the segmenter's ``method`` as its ``mask_source`` (what the count's masks step checks: core/clustering/
+mask_fruits.py).
 """
 
 from __future__ import annotations
@@ -15,7 +17,8 @@ import cv2
 import numpy as np
 
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_uint16_png
-from fruitnerfpp_ros.core.data.transforms_format import TransformsFile, read_transforms, write_transforms
+from fruitnerfpp_ros.core.data.transforms_format import MASK_SOURCE_KEY, TransformsFile, read_transforms, \
+    write_transforms
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.core.segmentation.segmenter import Segmenter, segment
 from fruitnerfpp_ros.errors import DatasetError, SegmentationError
@@ -102,7 +105,8 @@ def check_no_masks(dataset_dir: str | Path, transforms: TransformsFile | None = 
 
 
 def segment_dataset(dataset_dir: str | Path, segmenter: Segmenter, *, overwrite: bool = False,
-                    progress: ProgressCallback = ignore_progress) -> SegmentationSummary:
+                    progress: ProgressCallback = ignore_progress,
+                    mask_source: str | None = None) -> SegmentationSummary:
     """Segment every frame's image with ``segmenter``, write its masks and record them in transforms.json.
 
     Args:
@@ -110,6 +114,8 @@ def segment_dataset(dataset_dir: str | Path, segmenter: Segmenter, *, overwrite:
         segmenter: ``rgb [H, W, 3] uint8 -> ids [H, W] uint16``.
         overwrite: replace masks that frames already name, or that exist where the new ones would go.
         progress: called after each image (phase ``segment``).
+        mask_source: recorded as transforms.json's ``mask_source`` (default: the segmenter's ``method``; a
+            segmenter without one leaves the key out).
 
     Raises:
         DatasetError: a malformed transforms.json, an unreadable image, two images whose masks would share a file.
@@ -134,5 +140,9 @@ def segment_dataset(dataset_dir: str | Path, segmenter: Segmenter, *, overwrite:
         new_frames.append(replace(frame, instance_path=instance_path, semantic_path=semantic_path))
         progress(ProgressEvent(Phase.SEGMENT, index + 1, len(frames), f'{k} fruits'))
     transforms.frames = new_frames
+    source = mask_source or getattr(segmenter, 'method', None)
+    transforms.extra.pop(MASK_SOURCE_KEY, None)         # the old masks' source no longer holds
+    if source:
+        transforms.extra[MASK_SOURCE_KEY] = str(source)
     write_transforms(dataset_dir, transforms)
     return SegmentationSummary(dataset_dir, len(frames), n_instances, empty, time.perf_counter() - start)

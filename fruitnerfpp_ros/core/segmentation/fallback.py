@@ -179,6 +179,9 @@ def _drop_thin(labels: np.ndarray, min_fill_ratio: float, max_elongation: float)
 class FallbackSegmenter:
     """The built-in fruit-agnostic colour segmenter (see the module docstring); no model, no torch."""
 
+    method = 'fallback'
+    """Recorded as the dataset's ``mask_source``."""
+
     def __init__(self, config: SegmenterConfig = SegmenterConfig()) -> None:
         self.config = config
 

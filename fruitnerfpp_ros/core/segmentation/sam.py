@@ -64,6 +64,9 @@ class SamSegmenter:
             package is not installed, or the checkpoint does not load as ``sam_model_type``.
     """
 
+    method = 'sam'
+    """Recorded as the dataset's ``mask_source``."""
+
     def __init__(self, config: SegmenterConfig) -> None:
         self.config = config
         path = checkpoint_file('sam', config.checkpoint, 'Segment Anything')

@@ -18,6 +18,9 @@ class Segmenter(Protocol):
 
     Output: [H, W] uint16, 0 = background, 1..K = the image's fruits, contiguous. Ids are per-image labels only:
     nothing relates id k of one image to id k of another (the instance field learns the association).
+    A segmenter may name itself with a ``method`` attribute (the built-in ones do: ``fallback``, ``torchscript``,
+    ``sam``); :func:`~fruitnerfpp_ros.core.segmentation.dataset_masks.segment_dataset` records it as the dataset's
+    ``mask_source``.
     """
 
     def __call__(self, rgb: np.ndarray) -> np.ndarray:

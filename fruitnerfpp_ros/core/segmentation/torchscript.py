@@ -87,6 +87,9 @@ class TorchScriptSegmenter:
             file; when called, when the model fails or its output breaks the contract.
     """
 
+    method = 'torchscript'
+    """Recorded as the dataset's ``mask_source``."""
+
     def __init__(self, config: SegmenterConfig) -> None:
         self.config = config
         path = checkpoint_file('torchscript', config.checkpoint, 'TorchScript')

@@ -30,7 +30,8 @@ from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.config_io import config_to_mapping
 from fruitnerfpp_ros.core.data.depth_image import DEPTH_PNG_UNIT_M, write_depth_png
-from fruitnerfpp_ros.core.data.transforms_format import CameraIntrinsics, FrameEntry, TransformsFile, write_transforms
+from fruitnerfpp_ros.core.data.transforms_format import MASK_SOURCE_KEY, CameraIntrinsics, FrameEntry, TransformsFile, \
+    write_transforms
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.geometry import T_OPENGL_OPTICAL
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
@@ -197,6 +198,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
         'fruit_types': sorted(counts),
         'generator': {'name': 'fruitnerfpp synth', 'config': _recorded_config(config)},
         'frame': 'world: z up, metres, ground at z = 0, tree trunk at the origin',
+        MASK_SOURCE_KEY: 'ground_truth',                  # rendered instance ids
         **(transforms_extra or {}),
     }
     transforms_path = write_transforms(out_dir, TransformsFile(K, frames, ply_name, extra,

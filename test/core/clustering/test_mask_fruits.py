@@ -113,6 +113,25 @@ def test_off_leaves_the_count_alone(views: MaskViews) -> None:
     assert add_mask_fruits(count, views, DIAMETER, None, MaskFruitConfig(enabled=False)) is count
 
 
+@pytest.mark.parametrize('source, added', [(None, 2), ('topic', 2), ('ground_truth', 2), ('fallback', 0),
+                                           ('fallback+topic', 0), ('sam', 2)])
+def test_masks_of_the_colour_fallback_add_nothing(views: MaskViews, source: str | None, added: int) -> None:
+    result = add_mask_fruits(_count(FRUITS[:3]), dataclasses.replace(views, mask_source=source), DIAMETER, None,
+                             MaskFruitConfig())
+    assert result.count == 3 + added
+    assert result.stats['mask_fruits']['added'] == added
+    assert ('skipped_mask_source' in result.stats['mask_fruits']) == (added == 0)
+
+
+def test_the_skipped_sources_are_a_setting(views: MaskViews) -> None:
+    fallback = dataclasses.replace(views, mask_source='fallback')
+    assert add_mask_fruits(_count(FRUITS[:3]), fallback, DIAMETER, None,
+                           MaskFruitConfig(skip_mask_sources=())).count == 5
+    sam = dataclasses.replace(views, mask_source='sam')
+    assert add_mask_fruits(_count(FRUITS[:3]), sam, DIAMETER, None,
+                           MaskFruitConfig(skip_mask_sources=('sam',))).count == 3
+
+
 def test_the_settings_are_checked_and_nested_in_the_clustering_config() -> None:
     with pytest.raises(ConfigError):
         MaskFruitConfig(min_views=1)

@@ -69,6 +69,20 @@ def test_resume_snapshot_and_reset(tmp_path: Path) -> None:
         resumed.snapshot(tmp_path / 'snap2')
 
 
+def test_the_masks_source_is_recorded_and_joined_on_resume(tmp_path: Path) -> None:
+    store = KeyframeStore(tmp_path / 'kf', mask_source='topic')
+    store.offer(_kf(0.0, 0))
+    assert read_transforms(tmp_path / 'kf').mask_source == 'topic'
+    resumed = KeyframeStore(tmp_path / 'kf', mask_source='fallback')       # a second run, another source
+    resumed.offer(_kf(1.0, 1))
+    assert read_transforms(tmp_path / 'kf').mask_source == 'fallback+topic'
+    assert read_transforms(resumed.snapshot(tmp_path / 'snap').dataset_dir).mask_source == 'fallback+topic'
+    resumed.reset()
+    resumed.offer(_kf(2.0, 2))
+    assert read_transforms(tmp_path / 'kf').mask_source == 'fallback'
+    assert KeyframeStore(tmp_path / 'kf').frames and read_transforms(tmp_path / 'kf').mask_source == 'fallback'
+
+
 def test_a_keyframes_validity_mask_reaches_the_training_dataset(tmp_path: Path) -> None:
     """An undistorted keyframe's border is stored as nerfstudio's mask_path and loads as invalid pixels."""
     from fruitnerfpp_ros.core.data.dataset import load_dataset
