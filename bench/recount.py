@@ -40,7 +40,7 @@ from fruitnerfpp_ros.core.benchmark.scene_run import scored_ground_truth
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
-from fruitnerfpp_ros.core.clustering.mask_fruits import add_mask_fruits
+from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
 from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
 from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
@@ -91,7 +91,7 @@ def _count(cloud: FruitPointCloud, config: ClusterConfig, views: Callable[[], Ru
     if not config.masks.enabled:
         return count
     run_views = views()
-    return add_mask_fruits(count, run_views.masks, run_views.fruit_diameter_m, run_views.aabb, config.masks)
+    return count_with_masks(count, run_views.masks, run_views.fruit_diameter_m, run_views.aabb, config.masks)
 
 
 def _cloud(run_dir: Path, export: tuple[tuple[str, int | float | str], ...], scratch: Path) -> FruitPointCloud:

@@ -22,7 +22,7 @@ from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.clustering.counter import count_fruits
-from fruitnerfpp_ros.core.clustering.mask_fruits import MaskViews
+from fruitnerfpp_ros.core.clustering.mask_views import MaskViews
 from fruitnerfpp_ros.core.config_io import config_to_mapping
 from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth, load_predicted_centers
 from fruitnerfpp_ros.core.evaluation.metrics import EvalMetrics, evaluate_counts
@@ -282,14 +282,15 @@ def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *,
 
     ``executor``: where the clustering partitions run (see
     :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process). ``views``: the run's
-    training views; with them the fruit their unexplained masks agree on are added (``cluster_config.masks``).
+    training views; with them the count is checked against their masks (``cluster_config.masks``: fruit they
+    agree on added, pieces of one fruit joined).
     """
     config = cluster_config or ClusterConfig()
     count = count_fruits(cloud, config, executor=executor, progress=progress)
     if views is not None and config.masks.enabled:
-        from fruitnerfpp_ros.core.clustering.mask_fruits import add_mask_fruits
+        from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
 
-        count = add_mask_fruits(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks)
+        count = count_with_masks(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks)
     write_counts(counts_path, count, config, source=str(cloud_path))
     write_ply(cloud_path.with_suffix('.ply'), cloud, count.labels)
     write_npz(cloud_path.with_suffix('.npz'), cloud, count.labels)

@@ -13,13 +13,15 @@ __all__ = ['ClusterConfig', 'MaskFruitConfig']
 
 @dataclass(frozen=True)
 class MaskFruitConfig:
-    """Fruit triangulated from the instance masks the cloud's count leaves unexplained (``mask_fruits.py``).
+    """The count checked against the training views' instance masks (``mask_check.py``): fruit triangulated from
+    the masks the cloud's count leaves unexplained (``mask_fruits.py``), pieces of one fruit joined
+    (``mask_pieces.py``).
 
     Defaults set on the ``cpu`` and ``quick`` suites' trained fields, judged on the ``holdout`` suite
     (docs/results/accuracy_suite.md, session 31)."""
 
     enabled: bool = True
-    """Add the fruit several views' unexplained masks agree on (off: the count is the cloud's clusters alone)."""
+    """Check the count against the masks (off: the count is the cloud's clusters alone)."""
     min_mask_pixels: int = 6
     """Smaller masks are left out (a few pixels' centroid gives no ray to trust)."""
     explained_share: float = 0.5
@@ -38,6 +40,14 @@ class MaskFruitConfig:
     """No fruit is added this close (in fruit diameters) to a counted or an added one."""
     min_camera_distance_m: float = 0.1
     """A fruit lies at least this far in front of each camera that sees it."""
+    join_pieces: bool = True
+    """Join two counted fruits the masks show as pieces of one fruit (``mask_pieces.py``)."""
+    join_within_diameters: float = 2.0
+    """... when their centres lie within this many fruit diameters ..."""
+    join_min_shared_views: int = 3
+    """... and project onto the same instance mask in at least this many training views ..."""
+    join_max_split_views: int = 0
+    """... and onto two different masks in at most this many."""
     skip_mask_sources: tuple[str, ...] = ('fallback',)
     """Masks of these sources (the dataset's ``mask_source``; a joined one when any of its parts is listed) add
     nothing: the built-in colour segmenter merges fruit and marks leaves, and its unexplained masks agree where no
@@ -52,7 +62,10 @@ class MaskFruitConfig:
                   (self.max_depth_factor > 0, 'max_depth_factor must be > 0'),
                   (self.min_views >= 2, 'min_views must be >= 2 (one view cannot place a fruit in depth)'),
                   (self.min_separation_diameters >= 0, 'min_separation_diameters must be >= 0'),
-                  (self.min_camera_distance_m >= 0, 'min_camera_distance_m must be >= 0')]
+                  (self.min_camera_distance_m >= 0, 'min_camera_distance_m must be >= 0'),
+                  (self.join_within_diameters > 0, 'join_within_diameters must be > 0'),
+                  (self.join_min_shared_views >= 1 and self.join_max_split_views >= 0,
+                   'join_min_shared_views must be >= 1 and join_max_split_views >= 0')]
         for ok, message in checks:
             if not ok:
                 raise ConfigError(f'MaskFruitConfig: {message}')

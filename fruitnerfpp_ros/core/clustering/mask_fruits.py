@@ -21,9 +21,6 @@ the training views. This step, run after the clustering, looks for them:
    a fruit at the least-squares point of its rays, its rays are used up, and the next is taken, until none has the
    support left: each mask explains one fruit at most, so two fruits' rays crossing by chance cannot outvote them.
 
-Masks whose source ``skip_mask_sources`` lists (the dataset's ``mask_source``: the built-in colour segmenter's by
-default) add nothing: they mark leaves and merge fruit, and their unexplained masks agree where no fruit hangs.
-
 Everything is in metres and fruit diameters; nothing depends on the scene box's size. The added fruits have no
 cloud points (``n_points`` 0, ``source`` ``masks``): counts, centres and markers hold them, the instance cloud does
 not.
@@ -32,7 +29,6 @@ not.
 from __future__ import annotations
 
 import dataclasses
-import logging
 from dataclasses import dataclass
 
 import cv2
@@ -42,33 +38,11 @@ from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.clustering.mask_views import MaskViews, pinhole_view
 from fruitnerfpp_ros.core.tracking.camera import PinholeView, triangulate
 from fruitnerfpp_ros.core.tracking.detections import detect_blobs
 
-__all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays',
-           'add_mask_fruits', 'skipped_mask_source']
-
-_LOG = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class MaskViews:
-    """The training views a count is checked against.
-
-    Attributes:
-        instance_masks: [V, H, W] integer instance ids (0 = no fruit), as the dataset holds them.
-        intrinsics: [V, 4] fx, fy, cx, cy (pixels, undistorted images).
-        T_world_camera: [V, 4, 4] camera-to-world poses, OpenGL camera axes (x right, y up, looking along -z): the
-            poses the field was trained with (refined ones when pose refinement ran).
-        views: indices of the views to use (the training views).
-        mask_source: where the masks came from (the dataset's ``mask_source``), None when unknown.
-    """
-
-    instance_masks: np.ndarray
-    intrinsics: np.ndarray
-    T_world_camera: np.ndarray
-    views: np.ndarray
-    mask_source: str | None = None
+__all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays', 'add_mask_fruits']
 
 
 @dataclass(frozen=True)
@@ -91,13 +65,6 @@ class MaskRays:
 
     def __len__(self) -> int:
         return len(self.view)
-
-
-def _view(views: MaskViews, view: int) -> PinholeView:
-    """View ``view`` of ``views`` as the tracking package's pinhole camera (the masks are undistorted)."""
-    fx, fy, cx, cy = (float(v) for v in views.intrinsics[view])
-    height, width = views.instance_masks.shape[1:3]
-    return PinholeView(np.asarray(views.T_world_camera[view], np.float64), fx, fy, cx, cy, width, height)
 
 
 def _discs(camera: PinholeView, centers: np.ndarray, radius_m: float, margin_px: float) -> np.ndarray:
@@ -125,7 +92,7 @@ def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_
         blobs = detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
         if not len(blobs):
             continue
-        camera = _view(views, view)
+        camera = pinhole_view(views, view)
         discs = _discs(camera, centers, radius_m, config.disc_margin_px)
         covered = np.bincount(blobs.labels.ravel(), weights=discs.ravel(), minlength=len(blobs) + 1)[1:]
         keep = (blobs.areas_px >= config.min_mask_pixels) & (covered < config.explained_share * blobs.areas_px)
@@ -220,26 +187,12 @@ def triangulate_mask_rays(rays: MaskRays, fruit_diameter_m: float, aabb: np.ndar
     return np.vstack(added) if added else np.zeros((0, 3))
 
 
-def skipped_mask_source(mask_source: str | None, config: MaskFruitConfig) -> str | None:
-    """The part of ``mask_source`` (``fallback``, or a joined ``fallback+topic``) that ``config`` does not use, or
-    None when its masks are used (an unknown source included)."""
-    parts = str(mask_source or '').split('+')
-    return next((p for p in parts if p in config.skip_mask_sources), None)
-
-
 def add_mask_fruits(count: CountResult, views: MaskViews, fruit_diameter_m: float, aabb: np.ndarray | None,
                     config: MaskFruitConfig) -> CountResult:
     """``count`` with the fruits its unexplained masks agree on appended (ids after the clusters', ``n_points`` 0,
-    ``source`` ``masks``); ``stats['mask_fruits']`` says how many and from how many unexplained masks, or why the
-    masks were not used."""
+    ``source`` ``masks``); ``stats['mask_fruits']`` says how many and from how many unexplained masks."""
     if not config.enabled or not fruit_diameter_m > 0:
         return count
-    skipped = skipped_mask_source(views.mask_source, config)
-    if skipped is not None:
-        _LOG.info('masks from %r (mask_source %r) add no fruit (clustering.masks.skip_mask_sources)', skipped,
-                  views.mask_source)
-        return dataclasses.replace(count, stats={**count.stats, 'mask_fruits': {
-            'added': 0, 'skipped_mask_source': views.mask_source}})
     centers = count.centers()
     rays = unexplained_mask_rays(views, centers, fruit_diameter_m, config)
     found = triangulate_mask_rays(rays, fruit_diameter_m, aabb, centers, config)

@@ -1,7 +1,7 @@
 """Fruit the training views' masks agree on where the cloud's count has none (core/clustering/mask_fruits.py).
 
-The views are rendered here, independently of the module: spheres ray-cast into pinhole cameras on a circle (a
-z-buffer gives each pixel the nearest fruit), so the masks are what a camera shows, occlusions included.
+The views are rendered independently of the module (mask_scene.py): spheres ray-cast into pinhole cameras on a
+circle, so the masks are what a camera shows, occlusions included.
 """
 
 from __future__ import annotations
@@ -13,50 +13,15 @@ import pytest
 
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig, MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
 from fruitnerfpp_ros.core.clustering.mask_fruits import MaskViews, add_mask_fruits
 from fruitnerfpp_ros.errors import ConfigError
-
-DIAMETER = 0.07
-SIZE, FOCAL = 120, 120.0
-#: five fruits in a 0.5 m crown; each is 2-3 diameters from the others
-FRUITS = np.array([[0.0, 0.0, 0.0], [0.2, 0.05, 0.1], [-0.18, 0.12, -0.05], [0.05, -0.2, 0.15],
-                   [-0.1, -0.1, -0.2]])
-
-
-def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Camera-to-world pose, OpenGL axes (x right, y up, looking along -z)."""
-    forward = (target - eye) / np.linalg.norm(target - eye)
-    x = np.cross(forward, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(x, forward), -forward, eye
-    return T
-
-
-def _render(poses: np.ndarray, centers: np.ndarray) -> np.ndarray:
-    """[V, H, W] instance ids (fruit k is k + 1) of spheres of DIAMETER at ``centers``, nearest hit per pixel."""
-    rows, cols = np.mgrid[0:SIZE, 0:SIZE]
-    cam = np.stack([(cols + 0.5 - SIZE / 2) / FOCAL, -(rows + 0.5 - SIZE / 2) / FOCAL, -np.ones((SIZE, SIZE))], -1)
-    masks = np.zeros((len(poses), SIZE, SIZE), np.int32)
-    for v, T in enumerate(poses):
-        d = cam @ T[:3, :3].T
-        d /= np.linalg.norm(d, axis=-1, keepdims=True)
-        rel = centers - T[:3, 3]                                           # [K, 3]
-        along = d @ rel.T                                                  # [H, W, K]
-        off2 = (rel * rel).sum(1) - along ** 2
-        hit = (off2 <= (DIAMETER / 2) ** 2) & (along > 0)
-        depth = np.where(hit, along, np.inf)
-        nearest = depth.argmin(-1)
-        masks[v] = np.where(np.isfinite(depth.min(-1)), nearest + 1, 0)
-    return masks
+from test.core.clustering.mask_scene import DIAMETER, FRUITS, circle_views
 
 
 @pytest.fixture(scope='module')
 def views() -> MaskViews:
-    angles = np.linspace(0, 2 * np.pi, 12, endpoint=False)
-    poses = np.stack([_look_at(np.array([1.2 * np.cos(a), 1.2 * np.sin(a), 0.3]), np.zeros(3)) for a in angles])
-    intrinsics = np.tile([FOCAL, FOCAL, SIZE / 2, SIZE / 2], (len(poses), 1))
-    return MaskViews(_render(poses, FRUITS), intrinsics, poses, np.arange(len(poses)))
+    return circle_views()
 
 
 def _count(centers: np.ndarray) -> CountResult:
@@ -116,8 +81,8 @@ def test_off_leaves_the_count_alone(views: MaskViews) -> None:
 @pytest.mark.parametrize('source, added', [(None, 2), ('topic', 2), ('ground_truth', 2), ('fallback', 0),
                                            ('fallback+topic', 0), ('sam', 2)])
 def test_masks_of_the_colour_fallback_add_nothing(views: MaskViews, source: str | None, added: int) -> None:
-    result = add_mask_fruits(_count(FRUITS[:3]), dataclasses.replace(views, mask_source=source), DIAMETER, None,
-                             MaskFruitConfig())
+    result = count_with_masks(_count(FRUITS[:3]), dataclasses.replace(views, mask_source=source), DIAMETER, None,
+                              MaskFruitConfig())
     assert result.count == 3 + added
     assert result.stats['mask_fruits']['added'] == added
     assert ('skipped_mask_source' in result.stats['mask_fruits']) == (added == 0)
@@ -125,11 +90,11 @@ def test_masks_of_the_colour_fallback_add_nothing(views: MaskViews, source: str 
 
 def test_the_skipped_sources_are_a_setting(views: MaskViews) -> None:
     fallback = dataclasses.replace(views, mask_source='fallback')
-    assert add_mask_fruits(_count(FRUITS[:3]), fallback, DIAMETER, None,
-                           MaskFruitConfig(skip_mask_sources=())).count == 5
+    assert count_with_masks(_count(FRUITS[:3]), fallback, DIAMETER, None,
+                            MaskFruitConfig(skip_mask_sources=())).count == 5
     sam = dataclasses.replace(views, mask_source='sam')
-    assert add_mask_fruits(_count(FRUITS[:3]), sam, DIAMETER, None,
-                           MaskFruitConfig(skip_mask_sources=('sam',))).count == 3
+    assert count_with_masks(_count(FRUITS[:3]), sam, DIAMETER, None,
+                            MaskFruitConfig(skip_mask_sources=('sam',))).count == 3
 
 
 def test_the_settings_are_checked_and_nested_in_the_clustering_config() -> None:

@@ -1,0 +1,50 @@
+"""The masks step of the count: the clustering's count checked against the training views' instance masks.
+
+1. Fruit the masks agree on where the cloud has none are added (``mask_fruits.py``).
+2. Counted fruits the masks show as pieces of one fruit are joined (``mask_pieces.py``).
+
+Masks whose source ``skip_mask_sources`` lists (the dataset's ``mask_source``: the built-in colour segmenter's by
+default) are not used: that segmenter merges touching fruit and marks leaves, so its masks agree where no fruit
+hangs and show two touching fruits as one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+
+import numpy as np
+
+from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
+from fruitnerfpp_ros.core.clustering.count_result import CountResult
+from fruitnerfpp_ros.core.clustering.mask_fruits import add_mask_fruits
+from fruitnerfpp_ros.core.clustering.mask_pieces import join_mask_pieces
+from fruitnerfpp_ros.core.clustering.mask_views import MaskViews
+
+__all__ = ['skipped_mask_source', 'count_with_masks']
+
+_LOG = logging.getLogger(__name__)
+
+
+def skipped_mask_source(mask_source: str | None, config: MaskFruitConfig) -> str | None:
+    """The part of ``mask_source`` (``fallback``, or a joined ``fallback+topic``) that ``config`` does not use, or
+    None when its masks are used (an unknown source included)."""
+    parts = str(mask_source or '').split('+')
+    return next((p for p in parts if p in config.skip_mask_sources), None)
+
+
+def count_with_masks(count: CountResult, views: MaskViews, fruit_diameter_m: float, aabb: np.ndarray | None,
+                     config: MaskFruitConfig) -> CountResult:
+    """The clustering's ``count`` checked against the training views' masks: the fruit they agree on where the cloud
+    has none added, then the counted fruits they show as pieces of one joined. Unchanged when ``config`` is off or
+    the masks' source is skipped (``stats['mask_fruits']`` then says so)."""
+    if not config.enabled:
+        return count
+    skipped = skipped_mask_source(views.mask_source, config)
+    if skipped is not None:
+        _LOG.info('masks from %r (mask_source %r) left out of the count (clustering.masks.skip_mask_sources)',
+                  skipped, views.mask_source)
+        return dataclasses.replace(count, stats={**count.stats, 'mask_fruits': {
+            'added': 0, 'skipped_mask_source': views.mask_source}})
+    count = add_mask_fruits(count, views, fruit_diameter_m, aabb, config)
+    return join_mask_pieces(count, views, fruit_diameter_m, config)
