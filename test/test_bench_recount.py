@@ -1,5 +1,5 @@
 """bench/recount.py on a suite-shaped directory of the tiny trained run: its base variant counts the run's own cloud,
-an export variant exports the cloud again from the checkpoint."""
+an export variant exports the cloud again from the checkpoint; bench/mask_pairs.py on the same scene."""
 
 from __future__ import annotations
 
@@ -34,3 +34,6 @@ def test_export_variants_export_again_from_the_checkpoint(tiny_trained_run: Path
     masks_count, masks_f1 = table['masks']       # an empty cloud: every fruit triangulated from the training masks
     assert masks_count > 0 and masks_f1 >= 0.5, table['masks']
     assert (tmp_path / 'out' / 'clouds' / 'suite' / 'apple').is_dir()
+    pairs = load_bench_script('mask_pairs').scene_pairs(scene, 2.0)
+    two = [p for p in pairs if p[0] == 'two fruits']          # neighbouring apples, both counted right
+    assert two and sum(p[2] for p in two) > sum(p[1] for p in two), pairs   # the masks mostly show them apart
