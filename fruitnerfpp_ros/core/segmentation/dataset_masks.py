@@ -4,7 +4,7 @@ For frame ``images/0007.png`` the masks go to ``instances/0007.png`` (16-bit ids
 ``semantics/0007.png`` (8-bit, fruit = 255); the frame's ``instance_path`` / ``semantic_path`` are set and
 transforms.json is rewritten atomically once every image is done (an interrupted run leaves it unchanged), with
 the segmenter's ``method`` as its ``mask_source`` (what the count's masks step checks: core/clustering/
-mask_fruits.py).
+mask_check.py).
 """
 
 from __future__ import annotations
