@@ -25,12 +25,10 @@ from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.benchmark.scene_run import scored_ground_truth
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.clustering.counter import count_fruits
-from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
 from fruitnerfpp_ros.core.clustering.mask_pieces import mask_ids_at
 from fruitnerfpp_ros.core.evaluation.matching import hungarian_match
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
-from fruitnerfpp_ros.core.pipeline import load_run_views
+from fruitnerfpp_ros.core.pipeline import count_with_views, load_run_views
 from fruitnerfpp_ros.core.training import TrainConfig
 
 
@@ -43,8 +41,7 @@ def scene_pairs(scene_dir: Path, reach: float) -> list[tuple[str, int, int]]:
     config = ClusterConfig()
     config = dataclasses.replace(config, masks=dataclasses.replace(config.masks, join_pieces=False))
     views = load_run_views(scene_dir / 'run', dataset)
-    count = count_with_masks(count_fruits(read_cloud(scene_dir / 'run' / 'cloud.npz')[0], config), views.masks,
-                             views.fruit_diameter_m, views.aabb, config.masks)
+    count = count_with_views(read_cloud(scene_dir / 'run' / 'cloud.npz')[0], config, views)
     centers = count.centers()
     if len(centers) < 2:
         return []

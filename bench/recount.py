@@ -39,14 +39,12 @@ from fruitnerfpp_ros.cli.results import load_section
 from fruitnerfpp_ros.core.benchmark.scene_run import scored_ground_truth
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
-from fruitnerfpp_ros.core.clustering.counter import count_fruits
-from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
 from fruitnerfpp_ros.core.evaluation.metrics import evaluate_counts
 from fruitnerfpp_ros.core.export.config import ExportConfig
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
 from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 from fruitnerfpp_ros.core.orchard.jobs import read_segment_result, segment_fruits, write_segment_result
-from fruitnerfpp_ros.core.pipeline import RunViews, load_run_views
+from fruitnerfpp_ros.core.pipeline import RunViews, count_with_views, load_run_views
 from fruitnerfpp_ros.core.training import TrainConfig
 
 
@@ -85,13 +83,9 @@ def _variants(base: ClusterConfig, texts: list[str]) -> dict[str, Variant]:
 
 
 def _count(cloud: FruitPointCloud, config: ClusterConfig, views: Callable[[], RunViews]) -> CountResult:
-    """The cloud's count as the pipeline makes it: the clusters, plus the fruit the run's training views' masks
-    agree on (``masks.enabled``; ``views`` loads them, once per run)."""
-    count = count_fruits(cloud, config)
-    if not config.masks.enabled:
-        return count
-    run_views = views()
-    return count_with_masks(count, run_views.masks, run_views.fruit_diameter_m, run_views.aabb, config.masks)
+    """The cloud's count as the pipeline makes it: the clusters checked against the run's training views' masks
+    (``masks.enabled``; ``views`` loads them, once per run, only when needed)."""
+    return count_with_views(cloud, config, views() if config.masks.enabled else None)
 
 
 def _cloud(run_dir: Path, export: tuple[tuple[str, int | float | str], ...], scratch: Path) -> FruitPointCloud:

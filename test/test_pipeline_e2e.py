@@ -99,23 +99,29 @@ def test_count_and_eval_subcommands(pipeline_run, tiny_apple_dataset: Path, tmp_
     assert_counted(total, 20, data['f1'])
 
 
-def test_the_pipeline_reads_the_dataset_once(tiny_trained_run: Path, tiny_apple_dataset: Path, tmp_path: Path,
-                                             monkeypatch) -> None:
-    from fruitnerfpp_ros.core import pipeline
+def test_the_pipeline_reads_the_dataset_and_the_checkpoint_once(tiny_trained_run: Path, tiny_apple_dataset: Path,
+                                                                tmp_path: Path, monkeypatch) -> None:
+    from fruitnerfpp_ros.core import pipeline, training
     from fruitnerfpp_ros.core.data import dataset as dataset_module
 
-    reads = []
-    original = dataset_module.load_dataset
+    reads, loads = [], []
+    original, original_scene = dataset_module.load_dataset, training.load_trained_scene
 
     def counted(*args, **kwargs):
         reads.append(args[0] if args else kwargs.get('dataset_dir'))
         return original(*args, **kwargs)
 
+    def counted_scene(*args, **kwargs):
+        loads.append(args[0] if args else kwargs.get('run_dir'))
+        return original_scene(*args, **kwargs)
+
     monkeypatch.setattr(dataset_module, 'load_dataset', counted)
+    monkeypatch.setattr(training, 'load_trained_scene', counted_scene)
     run = tmp_path / 'run'
     shutil.copytree(tiny_trained_run, run)
     result = pipeline.run_pipeline(tiny_apple_dataset, run, skip_training=True, device='cpu')
     assert len(reads) == 1, reads          # the surface export and the masks' check share one read
+    assert len(loads) == 1, loads          # ... and one checkpoint
     assert result.count.count > 0 and 'mask_fruits' in result.count.stats
 
 

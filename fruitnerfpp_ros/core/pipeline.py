@@ -36,7 +36,7 @@ from fruitnerfpp_ros.core.progress import PipelineStage, ProgressCallback, Progr
 from fruitnerfpp_ros.errors import CheckpointError, DatasetError, ExportError
 
 __all__ = ['PipelineResult', 'PipelineOutputs', 'RunViews', 'load_run_views', 'run_pipeline',
-           'export_run', 'count_run', 'count_cloud',
+           'export_run', 'count_run', 'count_cloud', 'count_with_views',
            'evaluate_run', 'training_views', 'counts_to_json', 'write_counts', 'COUNTS_FORMAT_VERSION', 'CLOUD_PLY',
            'CLOUD_NPZ', 'COUNTS_JSON', 'EVAL_JSON', 'EXPORT_JSON', 'GT_JSON']
 
@@ -158,13 +158,13 @@ def _tqdm_progress(*, skip: PipelineStage = PipelineStage.TRAIN) -> Callable[[Pr
 def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *, device: str = 'auto',
                out: str | Path | None = None, progress: ProgressCallback | None = None,
                stop_event: threading.Event | None = None, write_cloud: bool = True,
-               dataset_dir: str | Path | None = None, dataset: Any = None) -> ExportResult:
+               dataset_dir: str | Path | None = None, dataset: Any = None, scene: Any = None) -> ExportResult:
     """Export the fruit point cloud of a trained run to ``out`` (default ``RUN_DIR/cloud.ply``) plus ``.npz``.
 
     Also writes ``export.json`` (the export report) next to the cloud. ``write_cloud=False`` leaves the cloud
     files to the caller (:func:`run_pipeline` writes them once, with the cluster ids). The surface export renders
     the training views of ``dataset_dir`` (default: the dataset the run was trained on), or of ``dataset`` when the
-    caller has loaded it (a ``SceneDataset``).
+    caller has loaded it (a ``SceneDataset``). ``scene``: the run's ``TrainedScene`` when the caller has loaded it.
 
     Raises:
         CheckpointError: ``run_dir`` is not a trained run.
@@ -176,7 +176,7 @@ def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *
     from fruitnerfpp_ros.core.training import load_trained_scene
 
     run_dir = Path(run_dir)
-    scene = load_trained_scene(run_dir, device=device)
+    scene = scene if scene is not None else load_trained_scene(run_dir, device=device)
     config = export_config or ExportConfig()
     diameter = scene.fruit_diameter_m
     if config.method == 'surface':
@@ -220,9 +220,10 @@ class RunViews:
 
 
 def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *, device: str = 'cpu',
-                   dataset: Any = None) -> RunViews:
+                   dataset: Any = None, scene: Any = None) -> RunViews:
     """The training views of the run in ``run_dir`` (its dataset, or ``dataset_dir``, or the ``SceneDataset`` the
-    caller has loaded), with the poses it trained with (refined ones when pose refinement ran).
+    caller has loaded), with the poses it trained with (refined ones when pose refinement ran). ``scene``: the run's
+    ``TrainedScene`` when the caller has loaded it.
 
     Raises:
         CheckpointError: ``run_dir`` is not a trained run.
@@ -231,7 +232,7 @@ def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *
     from fruitnerfpp_ros.core.data.dataset import load_dataset
     from fruitnerfpp_ros.core.training import load_trained_scene
 
-    scene = load_trained_scene(run_dir, device=device)
+    scene = scene if scene is not None else load_trained_scene(run_dir, device=device)
     if dataset is None:
         dataset = load_dataset(dataset_dir or scene.dataset_dir, eval_every=scene.config.data.eval_every)
     poses = scene.poses(dataset.T_world_camera).detach().cpu().double().numpy()
@@ -275,6 +276,18 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
     return count, cloud, counts_path
 
 
+def count_with_views(cloud: FruitPointCloud, config: ClusterConfig, views: RunViews | None, *,
+                     executor: Executor | None = None, progress: ProgressCallback | None = None) -> CountResult:
+    """The clusters of ``cloud``, checked against the run's training views' masks when ``views`` are given
+    (``config.masks``: fruit they agree on added, pieces of one fruit joined). Writes nothing."""
+    count = count_fruits(cloud, config, executor=executor, progress=progress)
+    if views is None or not config.masks.enabled:
+        return count
+    from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
+
+    return count_with_masks(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks)
+
+
 def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *, cloud_path: Path,
                 counts_path: Path, executor: Executor | None = None,
                 progress: ProgressCallback | None = None, views: RunViews | None = None) -> CountResult:
@@ -286,11 +299,7 @@ def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *,
     agree on added, pieces of one fruit joined).
     """
     config = cluster_config or ClusterConfig()
-    count = count_fruits(cloud, config, executor=executor, progress=progress)
-    if views is not None and config.masks.enabled:
-        from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
-
-        count = count_with_masks(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks)
+    count = count_with_views(cloud, config, views, executor=executor, progress=progress)
     write_counts(counts_path, count, config, source=str(cloud_path))
     write_ply(cloud_path.with_suffix('.ply'), cloud, count.labels)
     write_npz(cloud_path.with_suffix('.npz'), cloud, count.labels)
@@ -372,21 +381,21 @@ def run_pipeline(dataset_dir: str | Path, run_dir: str | Path, *, train_config: 
             empty = FruitPointCloud.empty(0)
             return PipelineResult(run_dir, empty, None, CountResult(np.zeros(0, np.int32), [], {}), None,
                                   PipelineOutputs(None, None, None, None, None), stopped=True, train_summary=summary)
-    from fruitnerfpp_ros.core.config_io import load_config
     from fruitnerfpp_ros.core.data.dataset import load_dataset
-    from fruitnerfpp_ros.core.training import RunDir, TrainConfig
+    from fruitnerfpp_ros.core.training import load_trained_scene
 
-    eval_every = load_config(TrainConfig, RunDir(run_dir).config_path).data.eval_every
+    scene = load_trained_scene(run_dir, device=device)     # read once: the export and the masks' views share it
+    eval_every = scene.config.data.eval_every
     masks = (cluster_config or ClusterConfig()).masks.enabled
     dataset = None   # read once: the surface export renders its views, the count checks its masks
     if masks or (export_config or ExportConfig()).method == 'surface':
         dataset = load_dataset(dataset_dir, eval_every=eval_every)
     exported = export_run(run_dir, export_config, device=device, progress=progress, stop_event=stop_event,
-                          write_cloud=False, dataset=dataset)
+                          write_cloud=False, dataset=dataset, scene=scene)
     cloud, counts_path = exported.cloud, run_dir / COUNTS_JSON
     views = None
     if masks and not exported.report.stopped:
-        views = load_run_views(run_dir, dataset=dataset)
+        views = load_run_views(run_dir, dataset=dataset, scene=scene)
     count = count_cloud(cloud, cluster_config, cloud_path=run_dir / CLOUD_PLY, counts_path=counts_path,
                         executor=executor, progress=progress, views=views)
     metrics = None
