@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
+from fruitnerfpp_ros.core.preset_names import PRESET_CHOICES
 
 __all__ = ['register', 'run', 'render_instance_cloud']
 
@@ -79,7 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--resolution', type=int, default=96, help='square image size, px')
     parser.add_argument('--trajectory', choices=('hemisphere', 'row'), default='hemisphere')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap', help='rosbag2 storage')
-    parser.add_argument('--preset', choices=('auto', *PRESET_NAMES), default='auto',
+    parser.add_argument('--preset', choices=PRESET_CHOICES, default='auto',
                         help='training preset (auto = default on CUDA, tiny on CPU)')
     parser.add_argument('--device', default='auto', help='torch device: auto, cpu, cuda, cuda:N')
     parser.add_argument('--seed', type=int, default=0)

@@ -20,7 +20,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
+from fruitnerfpp_ros.core.preset_names import PRESET_CHOICES
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['register', 'run', 'make_runner']
@@ -46,7 +46,7 @@ def register(subparsers: Any) -> None:
                         help='CPU threads per segment job (default: the CPUs divided by --workers)')
     parser.add_argument('--ray-address', help='address of a running Ray cluster (e.g. ray://head:10001 or auto)')
     parser.add_argument('--no-ray', action='store_true', help='run the segments in this process, one after another')
-    parser.add_argument('--preset', choices=('auto', *PRESET_NAMES), help='training preset of every segment')
+    parser.add_argument('--preset', choices=PRESET_CHOICES, help='training preset of every segment')
     parser.add_argument('--device', help='torch device of in-process jobs: auto, cpu, cuda, cuda:N')
     parser.add_argument('--config', type=Path, help="YAML with sections 'train', 'export', 'clustering', 'orchard'")
     parser.add_argument('--gt', type=Path, help='ground truth directory (gt_fruits.json + gt_trees.json; default: '

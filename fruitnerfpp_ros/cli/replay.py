@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from fruitnerfpp_ros.nodes.params import CounterSettings
 
-from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
+from fruitnerfpp_ros.core.preset_names import PRESET_CHOICES
 
 __all__ = ['register', 'run', 'settings_from_args', 'main']
 
@@ -29,7 +29,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--out', type=Path, required=True, help='run directory to create / fill')
     parser.add_argument('--params', type=Path, help='ROS 2 params file (e.g. config/fruit_counter.yaml): topics, '
                         'pose source, keyframe selection, preset')
-    parser.add_argument('--preset', choices=('auto', *PRESET_NAMES),
+    parser.add_argument('--preset', choices=PRESET_CHOICES,
                         help="training preset (overrides the params file; auto = default on CUDA, tiny on CPU)")
     parser.add_argument('--device', help='torch device: auto, cpu, cuda, cuda:N')
     parser.add_argument('--no-train', action='store_true', help='only collect keyframes')

@@ -4,7 +4,7 @@
 - ``count RUN_DIR|cloud.ply [--out counts.json]``: cluster the cloud into fruits.
 - ``eval counts.json --gt gt_fruits.json [--json] [--picture out.png [--dataset DATA_DIR]]``: precision / recall /
   F1 (Hungarian and greedy matching), optionally drawn.
-- ``run DATA_DIR --out RUN_DIR [--preset tiny]``: train -> export -> count (-> eval), then a result table.
+- ``run DATA_DIR --out RUN_DIR [--preset auto]``: train -> export -> count (-> eval), then a result table.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from fruitnerfpp_ros.core.clustering.config import ClusterConfig
 from fruitnerfpp_ros.core.config_io import (config_from_mapping, is_sectioned, load_yaml_mapping,
                                             pipeline_sections, replace_nested)
 from fruitnerfpp_ros.core.export.config import ExportConfig
-from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
+from fruitnerfpp_ros.core.preset_names import AUTO, PRESET_CHOICES
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['register', 'load_section']
@@ -110,7 +110,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           'dataset has gt_fruits.json.')
     p.add_argument('data_dir', type=Path, help='transforms.json dataset directory')
     p.add_argument('--out', type=Path, required=True, help='run directory')
-    p.add_argument('--preset', default='tiny', choices=PRESET_NAMES, help='training preset (default tiny)')
+    p.add_argument('--preset', default=AUTO, choices=PRESET_CHOICES,
+                   help='training preset (default auto: default on CUDA, tiny on the CPU)')
     p.add_argument('--device', default='auto', help='auto, cpu, cuda, cuda:N')
     p.add_argument('--config', type=Path, help='YAML with optional sections train / export / clustering')
     p.add_argument('--resume', action='store_true', help='continue training from RUN_DIR')
@@ -158,7 +159,7 @@ def _run_eval(args: argparse.Namespace) -> int:
 
 
 def _run_pipeline(args: argparse.Namespace) -> int:
-    from fruitnerfpp_ros.cli.train import resolve_train_config
+    from fruitnerfpp_ros.cli.train import resolve_preset, resolve_train_config
     from fruitnerfpp_ros.core.clustering.workers import partition_pool
     from fruitnerfpp_ros.core.pipeline import run_pipeline
 
@@ -167,7 +168,7 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     if args.resume:  # a kill or a full disk may have cut the last metrics line: resume reads the log again
         from fruitnerfpp_ros.core.atomic_io import trim_torn_line
         trim_torn_line(Path(args.out) / 'metrics.jsonl')
-    train_config = resolve_train_config(args.preset, args.config, section='train')
+    train_config = resolve_train_config(resolve_preset(args.preset, args.device), args.config, section='train')
     use_cpu_threads(train_config.cpu_threads, args.device)
     cluster_config = _cluster_config(args, args.config)
     with partition_pool(cluster_config.n_jobs) as pool:

@@ -7,13 +7,27 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from fruitnerfpp_ros.core.config_io import load_pipeline_sections, load_yaml_mapping, replace_nested
-from fruitnerfpp_ros.core.preset_names import PRESET_NAMES
+import sys
+
+from fruitnerfpp_ros.core.preset_names import AUTO, AUTO_ON_CPU_WARNING, PRESET_CHOICES, auto_preset
 from fruitnerfpp_ros.errors import ConfigError
 
 if TYPE_CHECKING:  # torch is imported only by the commands that train (``fruitnerfpp --help`` stays fast)
     from fruitnerfpp_ros.core.training import TrainConfig
 
-__all__ = ['register', 'run', 'resolve_train_config']
+__all__ = ['register', 'run', 'resolve_preset', 'resolve_train_config']
+
+
+def resolve_preset(name: str, device: str) -> str:
+    """The preset ``name`` stands for on ``device``: itself, or for ``auto`` :func:`auto_preset` of the device the
+    run trains on (on the CPU with a warning on stderr, as the node logs it)."""
+    if name != AUTO:
+        return name
+    from fruitnerfpp_ros.core.device import resolve_device
+    on_cuda = resolve_device(device).type == 'cuda'
+    if not on_cuda:
+        print(f'warning: {AUTO_ON_CPU_WARNING}', file=sys.stderr)
+    return auto_preset(on_cuda)
 
 
 def resolve_train_config(preset: str, config_file: str | Path | None, *, section: str | None = None
@@ -43,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     from fruitnerfpp_ros.core.device import use_cpu_threads
     from fruitnerfpp_ros.core.training import train
 
-    config = resolve_train_config(args.preset, args.config)
+    config = resolve_train_config(resolve_preset(args.preset, args.device), args.config)
     use_cpu_threads(config.cpu_threads, args.device)
     summary = train(args.dataset, args.out, config, device=args.device, resume=args.resume, show_progress=True)
     for stage in summary.stages:
@@ -60,9 +74,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                    description=__doc__)
     parser.add_argument('dataset', metavar='DATA_DIR', help='dataset directory holding transforms.json')
     parser.add_argument('--out', required=True, metavar='RUN_DIR', help='run directory (config, checkpoints, metrics)')
-    parser.add_argument('--preset', default='default', choices=PRESET_NAMES,
+    parser.add_argument('--preset', default=AUTO, choices=PRESET_CHOICES,
                         help='hyper-parameter preset: tiny (CPU tests), cpu (a real tree on a CPU), default (GPU), '
-                             'paper (long schedule)')
+                             'paper (long schedule); auto (the default): default on CUDA, tiny on the CPU')
     parser.add_argument('--device', default='auto', help='auto, cpu or cuda[:N] (default: auto)')
     parser.add_argument('--resume', action='store_true', help='continue from RUN_DIR/checkpoints/latest.pt')
     parser.add_argument('--config', metavar='FILE.yaml', help='YAML with TrainConfig values overriding the preset')

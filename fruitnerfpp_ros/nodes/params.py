@@ -17,6 +17,7 @@ from typing import Any, Literal, Mapping, NamedTuple
 from fruitnerfpp_ros.core.config_io import (config_from_mapping, config_to_mapping, load_pipeline_sections,
                                             load_yaml_mapping, replace_nested)
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeConfig
+from fruitnerfpp_ros.core.preset_names import AUTO_ON_CPU_WARNING, auto_preset
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['CounterSettings', 'ParamSpec', 'PARAMETERS', 'settings_from_parameters', 'load_parameter_file',
@@ -191,10 +192,9 @@ def pipeline_configs(settings: CounterSettings) -> PipelineConfigs:
     if name == 'auto':
         from fruitnerfpp_ros.core.device import resolve_device
         on_cuda = resolve_device(settings.device).type == 'cuda'
-        name = 'default' if on_cuda else 'tiny'
+        name = auto_preset(on_cuda)
         if not on_cuda:
-            warnings.append("preset 'auto' on the CPU: using the 'tiny' preset (fast, lower quality); preset "
-                            "'cpu' counts better in about 3x the time; on a CUDA machine 'auto' is 'default'")
+            warnings.append(AUTO_ON_CPU_WARNING)
     sections: dict[str, Any] = {}
     if settings.config_file:  # the same file `fruitnerfpp run --config` reads, under the same rules
         sections = load_pipeline_sections(settings.config_file, kind='config_file')

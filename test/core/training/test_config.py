@@ -60,6 +60,19 @@ def test_every_preset_is_offered_by_the_commands_and_the_node() -> None:
     hints = typing.get_type_hints(CounterSettings)
     assert typing.get_args(hints['preset']) == ('auto', *PRESET_NAMES)
     sub = next(a for a in build_parser()._actions if a.dest == 'command').choices
-    for command in ('replay', 'demo'):
+    for command in ('train', 'run', 'replay', 'demo', 'orchard'):
         preset = next(a for a in sub[command]._actions if a.dest == 'preset')
         assert tuple(preset.choices) == ('auto', *PRESET_NAMES), command
+    for command in ('train', 'run'):  # a command that trains picks the device's preset by itself (it was 'default' /
+        args = build_parser().parse_args([command, 'data', '--out', 'run'])        # 'tiny' whatever the device)
+        assert args.preset == 'auto', command
+
+
+def test_auto_is_tiny_on_the_cpu_with_a_warning_and_default_on_cuda(capsys) -> None:
+    from fruitnerfpp_ros.cli.train import resolve_preset
+    from fruitnerfpp_ros.core.preset_names import auto_preset
+    assert resolve_preset('auto', 'cpu') == 'tiny'
+    assert "preset 'auto' on the CPU" in capsys.readouterr().err
+    assert resolve_preset('cpu', 'cpu') == 'cpu' and resolve_preset('default', 'cpu') == 'default'
+    assert capsys.readouterr().err == ''                   # a named preset is taken as it is, without a word
+    assert auto_preset(on_cuda=True) == 'default' and auto_preset(on_cuda=False) == 'tiny'
