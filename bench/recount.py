@@ -18,10 +18,14 @@ directions, so the count cannot move its points to their fruits' centres: give s
   with the one variant given, and COPY gets the row's layout with the segments' ``result.json`` rewritten, so that
   ``fruitnerfpp orchard DATASET --out COPY ...`` merges and reports the row again without training.
 
+With ``--mask-noise DROPPED,FALSE`` every variant is counted against masks with that share of fruit missed and of
+false detections added (``bench/mask_noise.py``); the training keeps its own masks.
+
 Usage::
 
     python bench/recount.py SUITE_DIR... --out OUT --variant agree=merge_agreeing_m:0.1,merge_agreeing_cos:0.9
     python bench/recount.py RUN --row-copy RUN_AGREE --variant agree=merge_agreeing_m:0.1
+    python bench/recount.py SUITE_DIR... --out OUT --mask-noise 0,0.1 --variant before=masks.chance_draws:0
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
+import importlib.util
 import json
 from pathlib import Path
 from typing import Callable, NamedTuple
@@ -98,7 +103,22 @@ def _cloud(run_dir: Path, export: tuple[tuple[str, int | float | str], ...], scr
     return export_run(run_dir, config, device='cpu', out=scratch / 'cloud.ply', write_cloud=False).cloud
 
 
-def _scene_counts(scene_dir: Path, variants: dict[str, Variant], scratch: Path) -> dict[str, tuple[int, float]]:
+def _views(run_dir: Path, dataset: Path, mask_noise: tuple[float, float] | None) -> Callable[[], RunViews]:
+    """A loader, reading once, of the run's training views; their masks made noisy (``bench/mask_noise.py``)."""
+    def load() -> RunViews:
+        views = load_run_views(run_dir, dataset)
+        if mask_noise is None:
+            return views
+        spec = importlib.util.spec_from_file_location('bench_mask_noise', Path(__file__).with_name('mask_noise.py'))
+        assert spec is not None and spec.loader is not None
+        noise = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(noise)
+        return dataclasses.replace(views, masks=noise.noisy_masks(views.masks, *mask_noise))
+    return functools.cache(load)
+
+
+def _scene_counts(scene_dir: Path, variants: dict[str, Variant], scratch: Path,
+                  mask_noise: tuple[float, float] | None = None) -> dict[str, tuple[int, float]]:
     """{variant: (count, F1)} of one suite scene's cloud, scored as the suite scores it."""
     exports = dict.fromkeys(v.export for v in variants.values())   # each export variant exported once
     clouds = {e: _cloud(scene_dir / 'run', e, scratch / str(i)) for i, e in enumerate(exports)}
@@ -106,17 +126,18 @@ def _scene_counts(scene_dir: Path, variants: dict[str, Variant], scratch: Path) 
     gt = scored_ground_truth(scene_dir / 'data' / 'gt_fruits.json', keyframes if keyframes.is_dir() else
                              scene_dir / 'data', scene_dir / 'run', TrainConfig().data.eval_every)
     dataset = keyframes if keyframes.is_dir() else scene_dir / 'data'
-    views = functools.cache(lambda: load_run_views(scene_dir / 'run', dataset))      # one read for all variants
+    views = _views(scene_dir / 'run', dataset, mask_noise)                           # one read for all variants
     counts = {name: _count(clouds[v.export], v.cluster, views) for name, v in variants.items()}
     return {name: (c.count, float(evaluate_counts(c.centers(), gt).f1)) for name, c in counts.items()}
 
 
-def recount_suites(suite_dirs: list[Path], variants: dict[str, Variant], out: Path) -> None:
+def recount_suites(suite_dirs: list[Path], variants: dict[str, Variant], out: Path,
+                   mask_noise: tuple[float, float] | None = None) -> None:
     scenes = sorted(p.parent.parent for d in suite_dirs for p in d.glob('*/run/cloud.npz'))
     table: dict[str, dict[str, tuple[int, float]]] = {}
     for scene in scenes:
         key = f'{scene.parent.name}/{scene.name}'
-        table[key] = _scene_counts(scene, variants, out / 'clouds' / key)
+        table[key] = _scene_counts(scene, variants, out / 'clouds' / key, mask_noise)
         print(key, '  '.join(f'{n} {c} {f:.3f}' for n, (c, f) in table[key].items()), flush=True)
     means = {name: float(np.mean([row[name][1] for row in table.values()])) for name in variants}
     out.mkdir(parents=True, exist_ok=True)
@@ -128,7 +149,7 @@ def recount_suites(suite_dirs: list[Path], variants: dict[str, Variant], out: Pa
     print('\n'.join(lines))
 
 
-def recount_row(run: Path, copy: Path, variant: Variant) -> None:
+def recount_row(run: Path, copy: Path, variant: Variant, mask_noise: tuple[float, float] | None = None) -> None:
     for seg in sorted((run / 'segments').glob('seg_*')):
         done = read_segment_result(seg)
         if done is None:
@@ -136,7 +157,7 @@ def recount_row(run: Path, copy: Path, variant: Variant) -> None:
             continue
         fruits, record = done
         cloud = _cloud(seg / 'run', variant.export, copy / 'segments' / seg.name / 'cloud')
-        count = _count(cloud, variant.cluster, lambda: load_run_views(seg / 'run', seg / 'dataset'))
+        count = _count(cloud, variant.cluster, _views(seg / 'run', seg / 'dataset', mask_noise))
         fruits = segment_fruits(fruits.segment, count)
         info = {k: v for k, v in record.items() if k not in ('segment', 'fruits')}
         (copy / 'segments' / seg.name).mkdir(parents=True, exist_ok=True)
@@ -152,13 +173,18 @@ def main() -> int:
     parser.add_argument('--out', type=Path, default=Path('recount'), help='suite mode: where the tables go')
     parser.add_argument('--row-copy', type=Path, help='row mode: the copy of the orchard run to write (with '
                         'the last --variant)')
+    parser.add_argument('--mask-noise', metavar='DROPPED,FALSE', help='count against masks with this share of '
+                        'fruit missed and of false detections added (bench/mask_noise.py)')
     args = parser.parse_args()
+    noise = tuple(float(v) for v in args.mask_noise.split(',')) if args.mask_noise else None
+    if noise is not None and len(noise) != 2:
+        parser.error('--mask-noise takes two numbers: DROPPED,FALSE')
     base = load_section(ClusterConfig, args.config, 'clustering')
     variants = _variants(base, args.variant)
     if args.row_copy is not None:
-        recount_row(args.runs[0], args.row_copy, list(variants.values())[-1])
+        recount_row(args.runs[0], args.row_copy, list(variants.values())[-1], noise)
     else:
-        recount_suites(args.runs, variants, args.out)
+        recount_suites(args.runs, variants, args.out, noise)
     return 0
 
 

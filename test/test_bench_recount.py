@@ -34,6 +34,9 @@ def test_export_variants_export_again_from_the_checkpoint(tiny_trained_run: Path
     masks_count, masks_f1 = table['masks']       # an empty cloud: every fruit triangulated from the training masks
     assert masks_count > 0 and masks_f1 >= 0.5, table['masks']
     assert (tmp_path / 'out' / 'clouds' / 'suite' / 'apple').is_dir()
+    missed = recount._variants(ClusterConfig(), ['masks=export.min_views:1000'])    # every mask missed: nothing to add
+    recount.recount_suites([tmp_path / 'suite'], missed, tmp_path / 'noisy', mask_noise=(1.0, 0.0))
+    assert json.loads((tmp_path / 'noisy' / 'recount.json').read_text())['scenes']['suite/apple']['masks'][0] == 0
     pairs = load_bench_script('mask_pairs').scene_pairs(scene, 2.0)
     two = [p for p in pairs if p[0] == 'two fruits']          # neighbouring apples, both counted right
     assert two and sum(p[2] for p in two) > sum(p[1] for p in two), pairs   # the masks mostly show them apart

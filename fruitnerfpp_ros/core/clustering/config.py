@@ -36,6 +36,17 @@ class MaskFruitConfig:
     """A mask's fruit lies no farther than this times the depth at which a whole fruit spans the mask."""
     min_views: int = 3
     """A fruit needs unexplained masks of at least this many views whose rays meet at it."""
+    chance_draws: int = 4
+    """``min_views`` is raised until fruit that views agree on by chance are rare: the unexplained masks' rays are
+    shuffled this many times (``mask_fruits.shuffled_rays``) and triangulated like the real ones; the floor is the
+    lowest at which the shuffles give at most ``max_chance_share`` times as many fruit as the real rays. A
+    segmenter's false detections agree by chance as well as leaves do (0: ``min_views`` as it is)."""
+    chance_shift_diameters: float = 3.0
+    """A shuffle turns each view's rays together by the angle this many fruit diameters span at their depth."""
+    max_chance_share: float = 0.2
+    """See ``chance_draws``."""
+    chance_seed: int = 0
+    """Seed of the shuffles (the count is the same on every run)."""
     min_separation_diameters: float = 1.0
     """No fruit is added this close (in fruit diameters) to a counted or an added one."""
     min_camera_distance_m: float = 0.1
@@ -62,6 +73,8 @@ class MaskFruitConfig:
                   (self.ray_gap_diameters > 0, 'ray_gap_diameters must be > 0'),
                   (self.max_depth_factor > 0, 'max_depth_factor must be > 0'),
                   (self.min_views >= 2, 'min_views must be >= 2 (one view cannot place a fruit in depth)'),
+                  (self.chance_draws >= 0 and self.chance_shift_diameters > 0 and self.max_chance_share >= 0,
+                   'chance_draws and max_chance_share must be >= 0, chance_shift_diameters > 0'),
                   (self.min_separation_diameters >= 0, 'min_separation_diameters must be >= 0'),
                   (self.min_camera_distance_m >= 0, 'min_camera_distance_m must be >= 0'),
                   (self.join_within_diameters > 0, 'join_within_diameters must be > 0'),

@@ -20,6 +20,13 @@ the training views. This step, run after the clustering, looks for them:
    half the gap, within its farthest depth). The best-supported candidate with at least ``min_views`` views becomes
    a fruit at the least-squares point of its rays, its rays are used up, and the next is taken, until none has the
    support left: each mask explains one fruit at most, so two fruits' rays crossing by chance cannot outvote them.
+5. **Agreement by chance.** Rays of different fruits (or of a segmenter's false detections on leaves) also pass
+   near one point in a few views. How often depends on the masks: how many go unexplained per view, how large,
+   from how many views. So the rays are shuffled (each view's rays turned together by a few fruit diameters:
+   every view keeps its masks, the views no longer agree) and triangulated in the same way, ``chance_draws``
+   times; ``min_views`` is raised until the shuffles give at most ``max_chance_share`` times as many fruit as the
+   real rays. Clean masks keep a floor of 3-5 views; with a false detection per ten fruit it rises to 4-6, and
+   what would have been dozens of ghosts is not counted (docs/results/accuracy_suite.md, session 33).
 
 Everything is in metres and fruit diameters; nothing depends on the scene box's size. The added fruits have no
 cloud points (``n_points`` 0, ``source`` ``masks``): counts, centres and markers hold them, the instance cloud does
@@ -35,6 +42,7 @@ import cv2
 import numpy as np
 import scipy.sparse as sparse
 from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
@@ -42,7 +50,8 @@ from fruitnerfpp_ros.core.clustering.mask_views import MaskViews, pinhole_view
 from fruitnerfpp_ros.core.tracking.camera import PinholeView, triangulate
 from fruitnerfpp_ros.core.tracking.detections import detect_blobs
 
-__all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays', 'add_mask_fruits']
+__all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays', 'ChanceFloor', 'shuffled_rays',
+           'chance_min_views', 'add_mask_fruits']
 
 
 @dataclass(frozen=True)
@@ -152,10 +161,13 @@ def _support(candidates: np.ndarray, rays: MaskRays, reach_m: float, near_m: flo
 
 
 def triangulate_mask_rays(rays: MaskRays, fruit_diameter_m: float, aabb: np.ndarray | None, centers: np.ndarray,
-                          config: MaskFruitConfig) -> np.ndarray:
-    """[M, 3] fruit centres several views' rays agree on, away from the counted ``centers`` [K, 3] (module doc)."""
+                          config: MaskFruitConfig) -> tuple[np.ndarray, np.ndarray]:
+    """([M, 3] fruit centres several views' rays agree on, away from the counted ``centers`` [K, 3]; [M] the number
+    of views that agree on each), best supported first: the support never rises along the list, so the fruits a
+    higher ``min_views`` would find are a head of it (module doc)."""
+    none = np.zeros((0, 3)), np.zeros(0, np.int64)
     if len(rays) < config.min_views:
-        return np.zeros((0, 3))
+        return none
     gap, near = config.ray_gap_diameters * fruit_diameter_m, config.min_camera_distance_m
     separation = config.min_separation_diameters * fruit_diameter_m
     points = _pair_points(rays, gap, near)
@@ -165,12 +177,13 @@ def triangulate_mask_rays(rays: MaskRays, fruit_diameter_m: float, aabb: np.ndar
     if len(centers) and len(points):
         points = points[cKDTree(centers).query(points)[0] >= separation]
     if not len(points):
-        return np.zeros((0, 3))
+        return none
     support = _support(points, rays, 0.5 * gap, near)
     views, view_index = np.unique(rays.view, return_inverse=True)
     one_hot = sparse.csr_matrix((np.ones(len(rays)), (np.arange(len(rays)), view_index)), shape=(len(rays), len(views)))
     unused = np.ones(len(rays))
     added: list[np.ndarray] = []
+    n_added: list[int] = []
     while True:
         seen_views = (support @ sparse.diags(unused) @ one_hot) > 0
         n_views = np.asarray(seen_views.sum(1)).ravel()
@@ -179,25 +192,79 @@ def triangulate_mask_rays(rays: MaskRays, fruit_diameter_m: float, aabb: np.ndar
             break
         members = support[best].indices[unused[support[best].indices] > 0]
         unused[members] = 0.0
-        none = np.zeros(len(members))                     # the point nearest the members' rays, no range prior
-        x = triangulate(rays.origin[members], rays.direction[members], none, none + 1.0, none).point
+        zero = np.zeros(len(members))                     # the point nearest the members' rays, no range prior
+        x = triangulate(rays.origin[members], rays.direction[members], zero, zero + 1.0, zero).point
         others = np.vstack([np.asarray(centers, np.float64).reshape(-1, 3), *added])
         if not len(others) or np.min(np.linalg.norm(others - x, axis=1)) >= separation:
             added.append(x[None])
-    return np.vstack(added) if added else np.zeros((0, 3))
+            n_added.append(int(n_views[best]))
+    return (np.vstack(added), np.asarray(n_added, np.int64)) if added else none
+
+
+@dataclass(frozen=True)
+class ChanceFloor:
+    """The views a masks' fruit needs, raised above ``min_views`` until agreement by chance is rare.
+
+    Attributes:
+        min_views: the floor.
+        chance_fruits: how many fruit the shuffled rays give at that floor (mean over the draws).
+    """
+
+    min_views: int
+    chance_fruits: float
+
+
+def shuffled_rays(rays: MaskRays, fruit_diameter_m: float, config: MaskFruitConfig,
+                  rng: np.random.Generator) -> MaskRays:
+    """``rays`` with each view's rays turned together, about a random axis across the view, by the angle that
+    ``chance_shift_diameters`` fruit diameters span at their depth: every view keeps its pattern of masks (as many,
+    as close together, as far), but the views no longer agree on where the fruit hang."""
+    _, index = np.unique(rays.view, return_inverse=True)
+    count = np.bincount(index).astype(np.float64)
+    axis = np.stack([np.bincount(index, weights=rays.direction[:, i]) for i in range(3)], axis=1)
+    axis /= np.maximum(np.linalg.norm(axis, axis=1, keepdims=True), 1e-12)
+    depth = np.bincount(index, weights=rays.max_depth) / count / config.max_depth_factor
+    turn = rng.normal(size=axis.shape)
+    turn -= np.sum(turn * axis, axis=1, keepdims=True) * axis
+    turn /= np.maximum(np.linalg.norm(turn, axis=1, keepdims=True), 1e-12)
+    angle = config.chance_shift_diameters * fruit_diameter_m / np.maximum(depth, 1e-9)
+    direction = Rotation.from_rotvec(turn * angle[:, None])[index].apply(rays.direction)
+    return dataclasses.replace(rays, direction=direction)
+
+
+def chance_min_views(rays: MaskRays, n_views: np.ndarray, fruit_diameter_m: float, aabb: np.ndarray | None,
+                     centers: np.ndarray, config: MaskFruitConfig) -> ChanceFloor:
+    """The lowest floor, from ``min_views`` up, at which ``chance_draws`` shuffles of ``rays``
+    (:func:`shuffled_rays`) give on average at most ``max_chance_share`` times as many fruit as the real rays do
+    (``n_views``: the views each real fruit has, from :func:`triangulate_mask_rays`)."""
+    if not config.chance_draws or not len(n_views):
+        return ChanceFloor(config.min_views, 0.0)
+    rng = np.random.default_rng(config.chance_seed)
+    draws = [triangulate_mask_rays(shuffled_rays(rays, fruit_diameter_m, config, rng), fruit_diameter_m, aabb,
+                                   centers, config)[1] for _ in range(config.chance_draws)]
+    floor = config.min_views
+    while True:
+        chance = float(np.mean([np.count_nonzero(d >= floor) for d in draws]))
+        if chance <= config.max_chance_share * np.count_nonzero(n_views >= floor) or floor > n_views.max():
+            return ChanceFloor(floor, chance)
+        floor += 1
 
 
 def add_mask_fruits(count: CountResult, views: MaskViews, fruit_diameter_m: float, aabb: np.ndarray | None,
                     config: MaskFruitConfig) -> CountResult:
     """``count`` with the fruits its unexplained masks agree on appended (ids after the clusters', ``n_points`` 0,
-    ``source`` ``masks``); ``stats['mask_fruits']`` says how many and from how many unexplained masks."""
+    ``source`` ``masks``); ``stats['mask_fruits']`` says how many, from how many unexplained masks, the views each
+    needed (``min_views``, raised by chance) and how many the shuffled rays would have added at that floor."""
     if not config.enabled or not fruit_diameter_m > 0:
         return count
     centers = count.centers()
     rays = unexplained_mask_rays(views, centers, fruit_diameter_m, config)
-    found = triangulate_mask_rays(rays, fruit_diameter_m, aabb, centers, config)
+    found, n_views = triangulate_mask_rays(rays, fruit_diameter_m, aabb, centers, config)
+    chance = chance_min_views(rays, n_views, fruit_diameter_m, aabb, centers, config)
+    found = found[n_views >= chance.min_views]
     start = max((f.id for f in count.fruits), default=0) + 1
     extent = np.full(3, fruit_diameter_m)
     fruits = [Fruit(start + i, x, fruit_diameter_m, extent, 0, source='masks') for i, x in enumerate(found)]
-    stats = {**count.stats, 'mask_fruits': {'added': len(fruits), 'unexplained_masks': len(rays)}}
+    stats = {**count.stats, 'mask_fruits': {'added': len(fruits), 'unexplained_masks': len(rays),
+                                            'min_views': chance.min_views, 'chance_fruits': chance.chance_fruits}}
     return dataclasses.replace(count, fruits=[*count.fruits, *fruits], stats=stats)
