@@ -47,4 +47,10 @@ def count_with_masks(count: CountResult, views: MaskViews, fruit_diameter_m: flo
         return dataclasses.replace(count, stats={**count.stats, 'mask_fruits': {
             'added': 0, 'skipped_mask_source': views.mask_source}})
     count = add_mask_fruits(count, views, fruit_diameter_m, aabb, config)
-    return join_mask_pieces(count, views, fruit_diameter_m, config)
+    count = join_mask_pieces(count, views, fruit_diameter_m, config)
+    added, joined = count.stats.get('mask_fruits', {}), count.stats.get('mask_pieces', {})
+    if added:
+        _LOG.info('masks: %d fruit added from %d unexplained masks (each seen in >= %d views; shuffled masks would '
+                  'give %.1f), %d pieces joined', added['added'], added['unexplained_masks'],
+                  added.get('min_views', config.min_views), added.get('chance_fruits', 0.0), joined.get('joined', 0))
+    return count
