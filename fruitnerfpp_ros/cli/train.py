@@ -3,12 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from fruitnerfpp_ros.core.config_io import load_pipeline_sections, load_yaml_mapping, replace_nested
-import sys
-
 from fruitnerfpp_ros.core.preset_names import AUTO, AUTO_ON_CPU_WARNING, PRESET_CHOICES, auto_preset
 from fruitnerfpp_ros.errors import ConfigError
 
