@@ -28,7 +28,7 @@ def noisy_masks(views: MaskViews, dropped: float, false: float, seed: int = 0) -
     rng = np.random.default_rng(seed)
     masks = np.array(views.instance_masks, copy=True)
     next_id = int(masks.max()) + 1
-    rows, cols = np.mgrid[0:masks.shape[1], 0:masks.shape[2]]
+    height, width = masks.shape[1:3]
     for view in np.asarray(views.views, np.int64):
         mask = masks[view]
         ids, areas = np.unique(mask[mask > 0], return_counts=True)
@@ -37,9 +37,13 @@ def noisy_masks(views: MaskViews, dropped: float, false: float, seed: int = 0) -
         lines, columns = np.nonzero(mask > 0)
         mask[np.isin(mask, ids[rng.random(len(ids)) < dropped])] = 0
         radius2 = np.median(areas) / np.pi
+        reach = int(np.ceil(np.sqrt(radius2)))
         for _ in range(rng.binomial(len(ids), false)):
             y = rng.integers(lines.min(), lines.max() + 1)
             x = rng.integers(columns.min(), columns.max() + 1)
-            mask[((rows - y) ** 2 + (cols - x) ** 2 <= radius2) & (mask == 0)] = next_id
+            top, left = max(0, y - reach), max(0, x - reach)      # the disc's window, not the whole image
+            window = mask[top:min(height, y + reach + 1), left:min(width, x + reach + 1)]
+            rows, cols = np.ogrid[top:top + window.shape[0], left:left + window.shape[1]]
+            window[((rows - y) ** 2 + (cols - x) ** 2 <= radius2) & (window == 0)] = next_id
             next_id += 1
     return dataclasses.replace(views, instance_masks=masks)

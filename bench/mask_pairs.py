@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.benchmark.scene_run import scored_ground_truth
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig
-from fruitnerfpp_ros.core.clustering.mask_pieces import mask_ids_at
+from fruitnerfpp_ros.core.clustering.mask_pieces import mask_ids_at, shared_and_split_views
 from fruitnerfpp_ros.core.evaluation.matching import hungarian_match
 from fruitnerfpp_ros.core.export.npz_io import read_cloud
 from fruitnerfpp_ros.core.pipeline import count_with_views, load_run_views
@@ -46,11 +46,12 @@ def scene_pairs(scene_dir: Path, reach: float) -> list[tuple[str, int, int]]:
     if len(centers) < 2:
         return []
     matched = dict(np.asarray(hungarian_match(centers, gt.centers, gt.diameters), np.int64).reshape(-1, 2).tolist())
-    ids = mask_ids_at(views.masks, centers)
+    pairs = cKDTree(centers).query_pairs(reach * views.fruit_diameter_m, output_type='ndarray')
+    if not len(pairs):
+        return []
+    shared, split = shared_and_split_views(mask_ids_at(views.masks, centers), pairs)
     out = []
-    for a, b in cKDTree(centers).query_pairs(reach * views.fruit_diameter_m, output_type='ndarray'):
-        both = (ids[:, a] > 0) & (ids[:, b] > 0)
-        one, two = int((both & (ids[:, a] == ids[:, b])).sum()), int((both & (ids[:, a] != ids[:, b])).sum())
+    for (a, b), one, two in zip(pairs.tolist(), shared.tolist(), split.tolist()):
         if a in matched and b in matched:
             label = 'two fruits'
         elif (a in matched) != (b in matched):

@@ -36,7 +36,7 @@ import functools
 import importlib.util
 import json
 from pathlib import Path
-from typing import Callable, NamedTuple
+from typing import Any, Callable, NamedTuple
 
 import numpy as np
 
@@ -103,17 +103,23 @@ def _cloud(run_dir: Path, export: tuple[tuple[str, int | float | str], ...], scr
     return export_run(run_dir, config, device='cpu', out=scratch / 'cloud.ply', write_cloud=False).cloud
 
 
+@functools.cache
+def _mask_noise() -> Any:
+    """``bench/mask_noise.py`` (a sibling script, not a package), loaded once."""
+    spec = importlib.util.spec_from_file_location('bench_mask_noise', Path(__file__).with_name('mask_noise.py'))
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 def _views(run_dir: Path, dataset: Path, mask_noise: tuple[float, float] | None) -> Callable[[], RunViews]:
     """A loader, reading once, of the run's training views; their masks made noisy (``bench/mask_noise.py``)."""
     def load() -> RunViews:
         views = load_run_views(run_dir, dataset)
         if mask_noise is None:
             return views
-        spec = importlib.util.spec_from_file_location('bench_mask_noise', Path(__file__).with_name('mask_noise.py'))
-        assert spec is not None and spec.loader is not None
-        noise = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(noise)
-        return dataclasses.replace(views, masks=noise.noisy_masks(views.masks, *mask_noise))
+        return dataclasses.replace(views, masks=_mask_noise().noisy_masks(views.masks, *mask_noise))
     return functools.cache(load)
 
 

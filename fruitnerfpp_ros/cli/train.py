@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from fruitnerfpp_ros.core.config_io import load_pipeline_sections, load_yaml_mapping, replace_nested
-from fruitnerfpp_ros.core.preset_names import AUTO, AUTO_ON_CPU_WARNING, PRESET_CHOICES, auto_preset
+from fruitnerfpp_ros.core.preset_names import AUTO, PRESET_CHOICES
 from fruitnerfpp_ros.errors import ConfigError
 
 if TYPE_CHECKING:  # torch is imported only by the commands that train (``fruitnerfpp --help`` stays fast)
@@ -18,15 +18,13 @@ __all__ = ['register', 'run', 'resolve_preset', 'resolve_train_config']
 
 
 def resolve_preset(name: str, device: str) -> str:
-    """The preset ``name`` stands for on ``device``: itself, or for ``auto`` :func:`auto_preset` of the device the
-    run trains on (on the CPU with a warning on stderr, as the node logs it)."""
-    if name != AUTO:
-        return name
-    from fruitnerfpp_ros.core.device import resolve_device
-    on_cuda = resolve_device(device).type == 'cuda'
-    if not on_cuda:
-        print(f'warning: {AUTO_ON_CPU_WARNING}', file=sys.stderr)
-    return auto_preset(on_cuda)
+    """The preset ``name`` stands for on ``device`` (``core.device.device_preset``); the CPU's warning for ``auto``
+    goes to stderr, as the node logs it."""
+    from fruitnerfpp_ros.core.device import device_preset
+    preset, warning = device_preset(name, device)
+    if warning:
+        print(f'warning: {warning}', file=sys.stderr)
+    return preset
 
 
 def resolve_train_config(preset: str, config_file: str | Path | None, *, section: str | None = None

@@ -6,9 +6,10 @@ import os
 
 import torch
 
+from fruitnerfpp_ros.core.preset_names import AUTO, AUTO_ON_CPU_WARNING, auto_preset
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['resolve_device', 'available_cores', 'cpu_thread_count', 'use_cpu_threads']
+__all__ = ['resolve_device', 'device_preset', 'available_cores', 'cpu_thread_count', 'use_cpu_threads']
 
 
 def resolve_device(name: str = 'auto') -> torch.device:
@@ -26,6 +27,19 @@ def resolve_device(name: str = 'auto') -> torch.device:
     if name == 'cpu':
         return torch.device('cpu')
     raise ConfigError(f'unknown device {name!r}; expected auto, cpu, cuda or cuda:N')
+
+
+def device_preset(name: str, device: str = 'auto') -> tuple[str, str | None]:
+    """(The training preset ``name`` stands for on ``device``, a warning for the user or None): a named preset as it
+    is; ``auto`` is ``default`` on CUDA and ``tiny`` on the CPU, with ``AUTO_ON_CPU_WARNING``.
+
+    Raises:
+        ConfigError: ``auto`` with a device that cannot be used (see :func:`resolve_device`).
+    """
+    if name != AUTO:
+        return name, None
+    on_cuda = resolve_device(device).type == 'cuda'
+    return auto_preset(on_cuda), (None if on_cuda else AUTO_ON_CPU_WARNING)
 
 
 def available_cores() -> int:

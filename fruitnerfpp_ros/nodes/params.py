@@ -17,7 +17,6 @@ from typing import Any, Literal, Mapping, NamedTuple
 from fruitnerfpp_ros.core.config_io import (config_from_mapping, config_to_mapping, load_pipeline_sections,
                                             load_yaml_mapping, replace_nested)
 from fruitnerfpp_ros.core.data.keyframe_store import KeyframeConfig
-from fruitnerfpp_ros.core.preset_names import AUTO_ON_CPU_WARNING, auto_preset
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['CounterSettings', 'ParamSpec', 'PARAMETERS', 'settings_from_parameters', 'load_parameter_file',
@@ -187,14 +186,9 @@ def pipeline_configs(settings: CounterSettings) -> PipelineConfigs:
     from fruitnerfpp_ros.core.clustering.config import ClusterConfig
     from fruitnerfpp_ros.core.export.config import ExportConfig
     from fruitnerfpp_ros.core.training import TrainConfig
-    warnings = []
-    name = settings.preset
-    if name == 'auto':
-        from fruitnerfpp_ros.core.device import resolve_device
-        on_cuda = resolve_device(settings.device).type == 'cuda'
-        name = auto_preset(on_cuda)
-        if not on_cuda:
-            warnings.append(AUTO_ON_CPU_WARNING)
+    from fruitnerfpp_ros.core.device import device_preset
+    name, warning = device_preset(settings.preset, settings.device)
+    warnings = [warning] if warning else []
     sections: dict[str, Any] = {}
     if settings.config_file:  # the same file `fruitnerfpp run --config` reads, under the same rules
         sections = load_pipeline_sections(settings.config_file, kind='config_file')

@@ -35,7 +35,7 @@ from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
 from fruitnerfpp_ros.core.clustering.mask_views import MaskViews, pinhole_view
 
-__all__ = ['mask_ids_at', 'join_mask_pieces']
+__all__ = ['mask_ids_at', 'shared_and_split_views', 'join_mask_pieces']
 
 
 def mask_ids_at(views: MaskViews, centers: np.ndarray) -> np.ndarray:
@@ -53,17 +53,21 @@ def mask_ids_at(views: MaskViews, centers: np.ndarray) -> np.ndarray:
     return ids
 
 
+def shared_and_split_views(ids: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """([P] views in which both centres of each pair fall on one mask, [P] views in which they fall on two), from
+    the [V, K] ``ids`` of :func:`mask_ids_at` and [P, 2] ``pairs`` of fruit indices."""
+    a, b = ids[:, pairs[:, 0]], ids[:, pairs[:, 1]]
+    both = (a > 0) & (b > 0)
+    return (both & (a == b)).sum(axis=0), (both & (a != b)).sum(axis=0)
+
+
 def _pieces(views: MaskViews, centers: np.ndarray, fruit_diameter_m: float,
             config: MaskFruitConfig) -> list[tuple[int, int]]:
     """Pairs (a, b), nearest first, of fruits within the reach whose centres the masks show as one fruit."""
     pairs = cKDTree(centers).query_pairs(config.join_within_diameters * fruit_diameter_m, output_type='ndarray')
     if not len(pairs):
         return []
-    ids = mask_ids_at(views, centers)
-    a, b = ids[:, pairs[:, 0]], ids[:, pairs[:, 1]]
-    both = (a > 0) & (b > 0)
-    shared = (both & (a == b)).sum(axis=0)
-    split = (both & (a != b)).sum(axis=0)
+    shared, split = shared_and_split_views(mask_ids_at(views, centers), pairs)
     keep = (shared >= config.join_min_shared_views) & (split <= config.join_max_split_views)
     pairs = pairs[keep]
     order = np.argsort(np.linalg.norm(centers[pairs[:, 0]] - centers[pairs[:, 1]], axis=1), kind='stable')

@@ -3,8 +3,6 @@ each pixel the nearest fruit), rendered here independently of the package's proj
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 
 from fruitnerfpp_ros.core.clustering.mask_views import MaskViews
@@ -50,18 +48,3 @@ def circle_views(centers: np.ndarray = FRUITS, n_views: int = 12) -> MaskViews:
     poses = np.stack([look_at(np.array([1.2 * np.cos(a), 1.2 * np.sin(a), 0.3]), np.zeros(3)) for a in angles])
     intrinsics = np.tile([FOCAL, FOCAL, SIZE / 2, SIZE / 2], (len(poses), 1))
     return MaskViews(render(poses, centers), intrinsics, poses, np.arange(len(poses)))
-
-
-def with_false_detections(views: MaskViews, per_view: int, seed: int) -> MaskViews:
-    """``views`` with ``per_view`` false detections added to each view's masks, as a segmenter makes them on leaves:
-    fruit-sized discs (3 px radius, ids from 100) at random places around the crown, the real masks kept on top."""
-    rng = np.random.default_rng(seed)
-    masks = views.instance_masks.copy()
-    rows, cols = np.mgrid[0:SIZE, 0:SIZE]
-    for mask in masks:
-        lines, columns = np.nonzero(mask > 0)
-        for k in range(per_view):
-            y = rng.integers(lines.min() - 10, lines.max() + 11)
-            x = rng.integers(columns.min() - 10, columns.max() + 11)
-            mask[((rows - y) ** 2 + (cols - x) ** 2 <= 9) & (mask == 0)] = 100 + k
-    return dataclasses.replace(views, instance_masks=masks)

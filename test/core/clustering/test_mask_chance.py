@@ -1,5 +1,6 @@
 """The masks' fruit need more views where views agree by chance (core/clustering/mask_fruits.py, chance_min_views):
-a segmenter's false detections must not become fruit. The views are rendered in mask_scene.py."""
+a segmenter's false detections must not become fruit. The views are rendered in mask_scene.py; the false detections
+are bench/mask_noise.py's, the model the suite's noisy-mask figures use."""
 
 from __future__ import annotations
 
@@ -11,7 +12,8 @@ from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.clustering.mask_fruits import (MaskViews, add_mask_fruits, shuffled_rays,
                                                          unexplained_mask_rays)
 from fruitnerfpp_ros.errors import ConfigError
-from test.core.clustering.mask_scene import DIAMETER, FRUITS, circle_views, with_false_detections
+from test.bench_scripts import load_bench_script
+from test.core.clustering.mask_scene import DIAMETER, FRUITS, circle_views
 
 EMPTY = CountResult(np.zeros(0, np.int32), [], {})
 
@@ -31,7 +33,7 @@ def _true_fruits(result: CountResult) -> int:
 
 @pytest.mark.parametrize('seed', [0, 1, 2])
 def test_false_detections_that_agree_by_chance_are_not_counted(views: MaskViews, seed: int) -> None:
-    noisy = with_false_detections(views, per_view=4, seed=seed)          # 48 false masks beside the 5 fruits'
+    noisy = load_bench_script('mask_noise').noisy_masks(views, 0.0, 0.8, seed)   # ~4 false masks a view, 5 fruit
     every = add_mask_fruits(EMPTY, noisy, DIAMETER, None, MaskFruitConfig(chance_draws=0))
     assert every.count >= 7                                              # three views agree on ghosts by chance
     result = add_mask_fruits(EMPTY, noisy, DIAMETER, None, MaskFruitConfig())
