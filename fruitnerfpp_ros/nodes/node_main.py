@@ -35,8 +35,9 @@ def spin_node(name: str, make_node: Callable[[], Node], make_executor: Callable[
 
     A callback still running after ``drain_timeout_s`` is a hang: its thread's stack goes to stderr, the node is
     not destroyed under it (a use after free in rcl), ``on_shutdown`` gets another ``drain_timeout_s`` (it may wait
-    for a lock the callback holds), and the process ends at once with exit code ``STUCK_EXIT_CODE``: the
-    interpreter's exit would otherwise join the executor's threads and wait for the stuck one for ever.
+    for a lock the callback holds), and the process ends at once with exit code ``STUCK_EXIT_CODE``, before
+    ``rclpy.try_shutdown``: the interpreter's exit would otherwise join the executor's threads and wait for the stuck
+    one for ever.
     """
     rclpy.init(args=args)
     node = executor = None
@@ -65,13 +66,13 @@ def spin_node(name: str, make_node: Callable[[], Node], make_executor: Callable[
                 _call_within(on_shutdown, node, drain_timeout_s)
             else:
                 on_shutdown(node)
-        if node is not None and not stuck:
-            node.destroy_node()
-        rclpy.try_shutdown()
-        if stuck:
+        if stuck:  # no rcl teardown under the stuck thread's handles: the process ends here
             sys.stdout.flush()
             sys.stderr.flush()
             os._exit(STUCK_EXIT_CODE)
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
     return 0
 
 

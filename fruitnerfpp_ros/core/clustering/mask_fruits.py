@@ -7,9 +7,9 @@ the training views. This step, run after the clustering, looks for them:
 
 1. **Unexplained masks.** Every counted fruit is drawn into every training view as a disc of its projected size
    (``disc_radius_factor`` radii plus ``disc_margin_px``). A view's instance mask of at least ``min_mask_pixels``
-   pixels is explained when at least ``explained_share`` of its pixels lie on such discs; the others are fruit the
-   count may lack (or the caps of counted fruits whose centres lie off, which the next steps must not turn into
-   doubles).
+   pixels (fewer where the fruit are small in the views: ``min_mask_share`` of a whole fruit's mask) is explained
+   when at least ``explained_share`` of its pixels lie on such discs; the others are fruit the count may lack (or the
+   caps of counted fruits whose centres lie off, which the next steps must not turn into doubles).
 2. **Rays.** An unexplained mask gives the ray through its centroid and a farthest depth: the depth at which a whole
    fruit of the scene's diameter would span the mask's extent, times ``max_depth_factor`` (a mask cut by leaves is
    smaller, its fruit nearer than that).
@@ -50,8 +50,8 @@ from fruitnerfpp_ros.core.clustering.mask_views import MaskViews, pinhole_view
 from fruitnerfpp_ros.core.tracking.camera import PinholeView, triangulate
 from fruitnerfpp_ros.core.tracking.detections import detect_blobs
 
-__all__ = ['MaskViews', 'MaskRays', 'unexplained_mask_rays', 'triangulate_mask_rays', 'ChanceFloor', 'shuffled_rays',
-           'chance_min_views', 'add_mask_fruits']
+__all__ = ['MaskViews', 'MaskRays', 'mask_pixel_floor', 'unexplained_mask_rays', 'triangulate_mask_rays',
+           'ChanceFloor', 'shuffled_rays', 'chance_min_views', 'add_mask_fruits']
 
 
 @dataclass(frozen=True)
@@ -64,6 +64,7 @@ class MaskRays:
         direction: [R, 3] unit direction through the mask's centroid.
         max_depth: [R] farthest distance along the ray at which its fruit may lie (m).
         pixels: [R] the mask's pixels.
+        min_pixels: the floor the masks met (:func:`mask_pixel_floor`).
     """
 
     view: np.ndarray
@@ -71,6 +72,7 @@ class MaskRays:
     direction: np.ndarray
     max_depth: np.ndarray
     pixels: np.ndarray
+    min_pixels: int = 0
 
     def __len__(self) -> int:
         return len(self.view)
@@ -92,19 +94,33 @@ def _discs(camera: PinholeView, centers: np.ndarray, radius_m: float, margin_px:
     return image
 
 
+def mask_pixel_floor(areas_px: np.ndarray, config: MaskFruitConfig) -> int:
+    """The fewest pixels a mask needs to give a ray: ``min_mask_pixels``, or ``min_mask_share`` of a whole fruit's
+    mask (the 90th percentile of ``areas_px``, every mask of every view) where that is less, never below
+    ``smallest_mask_pixels``. A fruit's pixels follow the camera, the standoff and the fruit, not the scene: plums
+    10-15 px in area at a row's standoff against apples of 40-110 px (docs/results/accuracy_suite.md, session 34)."""
+    if not len(areas_px):
+        return config.min_mask_pixels
+    whole = float(np.percentile(areas_px, 90))
+    return int(np.clip(np.ceil(config.min_mask_share * whole), config.smallest_mask_pixels, config.min_mask_pixels))
+
+
 def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_m: float,
                           config: MaskFruitConfig) -> MaskRays:
     """The rays of the masks of ``views`` that the fruits at ``centers`` [K, 3] do not explain (see module doc)."""
     parts: list[tuple[np.ndarray, ...]] = []
     radius_m = 0.5 * fruit_diameter_m * config.disc_radius_factor
-    for view in np.asarray(views.views, np.int64):
-        blobs = detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
+    view_ids = np.asarray(views.views, np.int64)
+    blobs_per_view = [detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
+                      for view in view_ids]
+    min_pixels = mask_pixel_floor(np.concatenate([b.areas_px for b in blobs_per_view] or [np.zeros(0)]), config)
+    for view, blobs in zip(view_ids, blobs_per_view):
         if not len(blobs):
             continue
         camera = pinhole_view(views, view)
         discs = _discs(camera, centers, radius_m, config.disc_margin_px)
         covered = np.bincount(blobs.labels.ravel(), weights=discs.ravel(), minlength=len(blobs) + 1)[1:]
-        keep = (blobs.areas_px >= config.min_mask_pixels) & (covered < config.explained_share * blobs.areas_px)
+        keep = (blobs.areas_px >= min_pixels) & (covered < config.explained_share * blobs.areas_px)
         if not keep.any():
             continue
         direction, range_per_depth = camera.rays(blobs.centroids_px[keep])
@@ -115,8 +131,9 @@ def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_
         parts.append((np.full(len(direction), view), np.broadcast_to(camera.origin, (len(direction), 3)), direction,
                       max_depth, blobs.areas_px[keep].astype(np.int64)))
     if not parts:
-        return MaskRays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64))
-    return MaskRays(*(np.concatenate([p[i] for p in parts]) for i in range(5)))
+        return MaskRays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64),
+                        min_pixels)
+    return MaskRays(*(np.concatenate([p[i] for p in parts]) for i in range(5)), min_pixels=min_pixels)
 
 
 def _pair_points(rays: MaskRays, gap_m: float, near_m: float, chunk_pairs: int = 1_000_000) -> np.ndarray:
@@ -266,5 +283,6 @@ def add_mask_fruits(count: CountResult, views: MaskViews, fruit_diameter_m: floa
     extent = np.full(3, fruit_diameter_m)
     fruits = [Fruit(start + i, x, fruit_diameter_m, extent, 0, source='masks') for i, x in enumerate(found)]
     stats = {**count.stats, 'mask_fruits': {'added': len(fruits), 'unexplained_masks': len(rays),
-                                            'min_views': chance.min_views, 'chance_fruits': chance.chance_fruits}}
+                                            'min_mask_pixels': rays.min_pixels, 'min_views': chance.min_views,
+                                            'chance_fruits': chance.chance_fruits}}
     return dataclasses.replace(count, fruits=[*count.fruits, *fruits], stats=stats)

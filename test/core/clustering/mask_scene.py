@@ -42,9 +42,11 @@ def render(poses: np.ndarray, centers: np.ndarray) -> np.ndarray:
     return masks
 
 
-def circle_views(centers: np.ndarray = FRUITS, n_views: int = 12) -> MaskViews:
-    """``n_views`` cameras on a circle of 1.2 m around the crown, 0.3 m up, seeing spheres at ``centers``."""
+def circle_views(centers: np.ndarray = FRUITS, n_views: int = 12, radius_m: float = 1.2) -> MaskViews:
+    """``n_views`` cameras on a circle of ``radius_m`` around the crown, 0.3 m up, seeing spheres at ``centers``
+    (a fruit spans 7 px at 1.2 m, 2-3 px at 3.4 m)."""
     angles = np.linspace(0, 2 * np.pi, n_views, endpoint=False)
-    poses = np.stack([look_at(np.array([1.2 * np.cos(a), 1.2 * np.sin(a), 0.3]), np.zeros(3)) for a in angles])
+    poses = np.stack([look_at(np.array([radius_m * np.cos(a), radius_m * np.sin(a), 0.3]), np.zeros(3))
+                      for a in angles])
     intrinsics = np.tile([FOCAL, FOCAL, SIZE / 2, SIZE / 2], (len(poses), 1))
     return MaskViews(render(poses, centers), intrinsics, poses, np.arange(len(poses)))

@@ -14,7 +14,7 @@ import pytest
 from fruitnerfpp_ros.core.clustering.config import ClusterConfig, MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
 from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
-from fruitnerfpp_ros.core.clustering.mask_fruits import MaskViews, add_mask_fruits
+from fruitnerfpp_ros.core.clustering.mask_fruits import MaskViews, add_mask_fruits, mask_pixel_floor
 from fruitnerfpp_ros.errors import ConfigError
 from test.core.clustering.mask_scene import DIAMETER, FRUITS, circle_views
 
@@ -57,6 +57,25 @@ def test_a_complete_count_gets_nothing_added(views: MaskViews) -> None:
 def test_an_empty_count_is_completed_from_the_masks_alone(views: MaskViews) -> None:
     result = add_mask_fruits(_count(np.zeros((0, 3))), views, DIAMETER, None, MaskFruitConfig())
     assert result.count == len(FRUITS)
+
+
+def test_fruit_a_few_pixels_across_are_found_where_the_whole_scene_is_that_small() -> None:
+    far = circle_views(radius_m=3.4)                                          # 2-3 px across, 4-5 px masks
+    areas = np.unique(far.instance_masks[far.instance_masks > 0], return_counts=True)[1] / len(far.views)
+    assert np.all(areas < 6), areas
+    result = add_mask_fruits(_count(FRUITS[:3]), far, DIAMETER, None, MaskFruitConfig())
+    assert result.count == 5 and result.stats['mask_fruits']['min_mask_pixels'] == 3, result.stats
+    error = np.linalg.norm(result.centers()[3:, None] - FRUITS[None, 3:], axis=-1).min(0)
+    assert np.all(error < 0.5 * DIAMETER), error
+    fixed = MaskFruitConfig(smallest_mask_pixels=6)                           # a 6 px floor whatever the scene
+    assert add_mask_fruits(_count(FRUITS[:3]), far, DIAMETER, None, fixed).count == 3
+
+
+@pytest.mark.parametrize('whole_px, floor', [(50, 6), (40, 6), (30, 5), (20, 3), (15, 3), (4, 3)])
+def test_the_mask_floor_is_a_share_of_a_whole_fruit_between_3_and_6_pixels(whole_px: int, floor: int) -> None:
+    areas = np.concatenate([np.full(80, 2), np.full(20, whole_px)])       # the largest fifth: whole fruit
+    assert mask_pixel_floor(areas, MaskFruitConfig()) == floor
+    assert mask_pixel_floor(np.zeros(0), MaskFruitConfig()) == 6
 
 
 def test_fruit_too_few_views_agree_on_are_not_added(views: MaskViews) -> None:
@@ -102,6 +121,8 @@ def test_the_settings_are_checked_and_nested_in_the_clustering_config() -> None:
         MaskFruitConfig(min_views=1)
     with pytest.raises(ConfigError):
         MaskFruitConfig(explained_share=0.0)
+    with pytest.raises(ConfigError):
+        MaskFruitConfig(smallest_mask_pixels=8)                               # above min_mask_pixels
     assert ClusterConfig().masks == MaskFruitConfig()
 
 
