@@ -105,16 +105,25 @@ def mask_pixel_floor(areas_px: np.ndarray, config: MaskFruitConfig) -> int:
     return int(np.clip(np.ceil(config.min_mask_share * whole), config.smallest_mask_pixels, config.min_mask_pixels))
 
 
+def _mask_areas(views: MaskViews) -> np.ndarray:
+    """The pixels of every instance mask (every non-zero id) of every view, one view at a time (a whole scene's
+    labelled blobs at once would hold a label image per view)."""
+    areas = [np.zeros(0, np.int64)]
+    for view in np.asarray(views.views, np.int64):
+        ids, counts = np.unique(np.asarray(views.instance_masks[view]), return_counts=True)
+        areas.append(counts[ids != 0])
+    return np.concatenate(areas)
+
+
 def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_m: float,
                           config: MaskFruitConfig) -> MaskRays:
     """The rays of the masks of ``views`` that the fruits at ``centers`` [K, 3] do not explain (see module doc)."""
     parts: list[tuple[np.ndarray, ...]] = []
     radius_m = 0.5 * fruit_diameter_m * config.disc_radius_factor
     view_ids = np.asarray(views.views, np.int64)
-    blobs_per_view = [detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
-                      for view in view_ids]
-    min_pixels = mask_pixel_floor(np.concatenate([b.areas_px for b in blobs_per_view] or [np.zeros(0)]), config)
-    for view, blobs in zip(view_ids, blobs_per_view):
+    min_pixels = mask_pixel_floor(_mask_areas(views), config)
+    for view in view_ids:
+        blobs = detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
         if not len(blobs):
             continue
         camera = pinhole_view(views, view)
