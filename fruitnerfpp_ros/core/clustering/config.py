@@ -29,8 +29,8 @@ class MaskFruitConfig:
     """... unless the scene's fruit are small in the views: the floor is then this share of a whole fruit's mask
     (the 90th percentile of the masks' areas over the views; whole fruits are the largest masks) ..."""
     smallest_mask_pixels: int = 3
-    """... but never below this many pixels. Plums 5-10 px across in a row drive: 28 of the 38 plums missed with a
-    6 px floor never have a 6 px mask (docs/results/accuracy_suite.md, session 34)."""
+    """... but never below this many pixels. Plums in a row drive cover 10-15 px when whole (4-6 px across): 28 of the
+    38 plums missed with a 6 px floor never have a 6 px mask (docs/results/accuracy_suite.md, session 34)."""
     explained_share: float = 0.5
     """A mask is explained when this share of its pixels lies on the discs of the counted fruits."""
     disc_radius_factor: float = 1.2

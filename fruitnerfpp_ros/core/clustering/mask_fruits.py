@@ -120,9 +120,8 @@ def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_
     """The rays of the masks of ``views`` that the fruits at ``centers`` [K, 3] do not explain (see module doc)."""
     parts: list[tuple[np.ndarray, ...]] = []
     radius_m = 0.5 * fruit_diameter_m * config.disc_radius_factor
-    view_ids = np.asarray(views.views, np.int64)
     min_pixels = mask_pixel_floor(_mask_areas(views), config)
-    for view in view_ids:
+    for view in np.asarray(views.views, np.int64):
         blobs = detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
         if not len(blobs):
             continue
