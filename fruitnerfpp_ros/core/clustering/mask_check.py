@@ -49,8 +49,8 @@ def count_with_masks(count: CountResult, views: MaskViews, fruit_diameter_m: flo
     count = add_mask_fruits(count, views, fruit_diameter_m, aabb, config)
     count = join_mask_pieces(count, views, fruit_diameter_m, config)
     added, joined = count.stats.get('mask_fruits', {}), count.stats.get('mask_pieces', {})
-    if added:
-        _LOG.info('masks: %d fruit added from %d unexplained masks (each seen in >= %d views; shuffled masks would '
-                  'give %.1f), %d pieces joined', added['added'], added['unexplained_masks'],
-                  added.get('min_views', config.min_views), added.get('chance_fruits', 0.0), joined.get('joined', 0))
+    if added:  # add_mask_fruits ran (its stats are all there)
+        _LOG.info('masks: %d fruit added from %d unexplained masks of >= %d px (each seen in >= %d views; shuffled '
+                  'masks would give %.1f), %d pieces joined', added['added'], added['unexplained_masks'],
+                  added['min_mask_pixels'], added['min_views'], added['chance_fruits'], joined.get('joined', 0))
     return count

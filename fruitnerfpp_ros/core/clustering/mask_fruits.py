@@ -105,30 +105,25 @@ def mask_pixel_floor(areas_px: np.ndarray, config: MaskFruitConfig) -> int:
     return int(np.clip(np.ceil(config.min_mask_share * whole), config.smallest_mask_pixels, config.min_mask_pixels))
 
 
-def _mask_areas(views: MaskViews) -> np.ndarray:
-    """The pixels of every instance mask (every non-zero id) of every view, one view at a time (a whole scene's
-    labelled blobs at once would hold a label image per view)."""
-    areas = [np.zeros(0, np.int64)]
-    for view in np.asarray(views.views, np.int64):
-        ids, counts = np.unique(np.asarray(views.instance_masks[view]), return_counts=True)
-        areas.append(counts[ids != 0])
-    return np.concatenate(areas)
-
-
 def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_m: float,
                           config: MaskFruitConfig) -> MaskRays:
-    """The rays of the masks of ``views`` that the fruits at ``centers`` [K, 3] do not explain (see module doc)."""
-    parts: list[tuple[np.ndarray, ...]] = []
+    """The rays of the masks of ``views`` that the fruits at ``centers`` [K, 3] do not explain (see module doc).
+
+    One pass over the views: every mask's area is gathered for :func:`mask_pixel_floor` while the rays of the
+    unexplained masks of at least ``smallest_mask_pixels`` are made; those under the floor are dropped at the end."""
+    parts: list[tuple[np.ndarray, ...]] = [(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
+                                            np.zeros(0, np.int64))]
+    areas = [np.zeros(0)]
     radius_m = 0.5 * fruit_diameter_m * config.disc_radius_factor
-    min_pixels = mask_pixel_floor(_mask_areas(views), config)
     for view in np.asarray(views.views, np.int64):
         blobs = detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
+        areas.append(blobs.areas_px)
         if not len(blobs):
             continue
         camera = pinhole_view(views, view)
         discs = _discs(camera, centers, radius_m, config.disc_margin_px)
         covered = np.bincount(blobs.labels.ravel(), weights=discs.ravel(), minlength=len(blobs) + 1)[1:]
-        keep = (blobs.areas_px >= min_pixels) & (covered < config.explained_share * blobs.areas_px)
+        keep = (blobs.areas_px >= config.smallest_mask_pixels) & (covered < config.explained_share * blobs.areas_px)
         if not keep.any():
             continue
         direction, range_per_depth = camera.rays(blobs.centroids_px[keep])
@@ -138,10 +133,10 @@ def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_
         max_depth = config.max_depth_factor * camera.fl_x * fruit_diameter_m / extent * range_per_depth
         parts.append((np.full(len(direction), view), np.broadcast_to(camera.origin, (len(direction), 3)), direction,
                       max_depth, blobs.areas_px[keep].astype(np.int64)))
-    if not parts:
-        return MaskRays(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64),
-                        min_pixels)
-    return MaskRays(*(np.concatenate([p[i] for p in parts]) for i in range(5)), min_pixels=min_pixels)
+    min_pixels = mask_pixel_floor(np.concatenate(areas), config)
+    view, origin, direction, max_depth, pixels = (np.concatenate([p[i] for p in parts]) for i in range(5))
+    big = pixels >= min_pixels
+    return MaskRays(view[big], origin[big], direction[big], max_depth[big], pixels[big], min_pixels)
 
 
 def _pair_points(rays: MaskRays, gap_m: float, near_m: float, chunk_pairs: int = 1_000_000) -> np.ndarray:
