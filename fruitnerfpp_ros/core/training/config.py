@@ -180,6 +180,11 @@ class GeometryStageConfig(StageSchedule):
     stages 1 and 2 and decayed like ``lr``; 0 = the recorded poses are used as they are."""
     pose_start_fraction: float = 0.25
     """The pose corrections start training after this fraction of stage 1 (a first geometry to align to)."""
+    pose_refine_when: str = 'always'
+    """``always``: ``pose_lr`` refines the poses of every run. ``aligned``: only of a run whose pose alignment
+    (``pose_alignment``) found the recorded poses off the images and corrected them; poses that agree with the
+    images (or a run without the alignment) stay as recorded. A short schedule's refinement drifts exact poses:
+    ``tiny`` with it always on lost 0.08-0.09 F1 on two noise-free rows (docs/results/pose_refinement.md)."""
     coarse_to_fine_fraction: float = 0.0
     """The geometry grid's levels open coarse to fine over this fraction of stage 1 (BARF's schedule): poses align
     to a smooth field first, where the photometric gradient points the way over more than a fine cell. 0 = all
@@ -341,6 +346,9 @@ class TrainConfig:
         for name in ('geometry', 'semantic'):
             if not 0.0 <= getattr(self, name).fruit_fraction < 1.0:
                 raise ConfigError(f'{name}.fruit_fraction must lie in [0, 1)')
+        if self.geometry.pose_refine_when not in ('always', 'aligned'):
+            raise ConfigError(f"geometry.pose_refine_when must be 'always' or 'aligned', got "
+                              f"{self.geometry.pose_refine_when!r}")
         if not 0.0 <= self.geometry.coarse_to_fine_fraction <= 1.0:
             raise ConfigError('geometry.coarse_to_fine_fraction must lie in [0, 1]')
         if self.checkpoint_every <= 0 or self.log_every <= 0:

@@ -23,14 +23,14 @@ import torch
 
 from fruitnerfpp_ros.core.config_io import config_from_mapping, config_to_mapping, save_config
 from fruitnerfpp_ros.core.data.dataset import SceneDataset, load_dataset
-from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignment, align_poses
 from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_checkpoint
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, psnr_from_mse
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
-from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement, write_refined_poses
+from fruitnerfpp_ros.core.training.pose_refinement import write_refined_poses
+from fruitnerfpp_ros.core.training.pose_start import aligned_poses, corrected_poses, refinement_after
 from fruitnerfpp_ros.core.training.run_dir import RunDir
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.data.scene_scale import SceneScale
@@ -273,9 +273,10 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     if state is not None:
         aabb, scale = np.asarray(state['aabb']), scale_from_json(state['scale'])
     else:
-        alignment = _aligned_poses(dataset, config)
+        alignment = aligned_poses(dataset, config)
+        config = refinement_after(alignment, config)
         measured = dataset if alignment is None else dataclasses.replace(
-            dataset, T_world_camera=_corrected(dataset, alignment.correction))
+            dataset, T_world_camera=corrected_poses(dataset, alignment.correction))
         aabb, scale = measure_scene(measured, config, dev)
     stages = build_stages(config, dataset, aabb)
     run.create()
@@ -310,30 +311,6 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
         p.requires_grad_(False)
     return TrainSummary(run.root, str(dev), tuple(counters.summaries or ()), stopped, aabb, scale, prepare_s,
                         clock.evaluate_s, clock.checkpoint_s)
-
-
-def _aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment | None:
-    """The feature-based pose alignment of the training views (``config.pose_alignment``), or None when off."""
-    if not config.pose_alignment.enabled:
-        return None
-    views = dataset.train_indices.numpy()
-    log.info('pose alignment: features and matches of %d training views', len(views))
-    images = (dataset.images[views].numpy() * 255.0).round().astype(np.uint8)
-    valid = None if dataset.valid_masks is None else dataset.valid_masks[views].numpy()
-    result = align_poses(images, dataset.intrinsics[views].double().numpy(),
-                         dataset.T_world_camera[views].double().numpy(), config.pose_alignment, valid)
-    correction = np.zeros((dataset.num_views, 6))
-    correction[views] = result.correction
-    log.info('pose alignment: %s', result.report)
-    return PoseAlignment(correction, result.report)
-
-
-def _corrected(dataset: SceneDataset, correction: np.ndarray) -> torch.Tensor:
-    """The dataset's poses with ``correction`` [V, 6] applied as :class:`PoseRefinement` applies it."""
-    trained = torch.zeros(dataset.num_views, dtype=torch.bool)
-    trained[dataset.train_indices] = True
-    with torch.no_grad():
-        return PoseRefinement(trained, correction)(dataset.T_world_camera)
 
 
 def _run_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDataset, config: TrainConfig, run: RunDir,

@@ -13,7 +13,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from fruitnerfpp_ros.core.config_io import replace_nested
+from fruitnerfpp_ros.core.config_io import load_config, replace_nested
 from fruitnerfpp_ros.core.data import pose_alignment
 from fruitnerfpp_ros.core.data.dataset import load_dataset
 from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignment, PoseAlignmentConfig, align_poses
@@ -21,7 +21,7 @@ from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
 from fruitnerfpp_ros.core.evaluation.pose_errors import pose_errors
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
-from fruitnerfpp_ros.core.training import train
+from fruitnerfpp_ros.core.training import TrainConfig, train
 from fruitnerfpp_ros.core.training.trained_scene import load_trained_scene
 from fruitnerfpp_ros.errors import ConfigError
 from test.core.training.stand_in_scene import make_sphere_scene
@@ -103,7 +103,7 @@ def test_training_starts_from_the_alignment(tmp_path: Path, monkeypatch: pytest.
         calls.append(len(images))
         return PoseAlignment(wanted, {'applied': True})
 
-    monkeypatch.setattr('fruitnerfpp_ros.core.training.trainer.align_poses', stub)
+    monkeypatch.setattr('fruitnerfpp_ros.core.training.pose_start.align_poses', stub)
     config = replace_nested(MICRO, {'pose_alignment': {'enabled': True}, 'geometry': {'pose_lr': 0.0}})
     train(scene, tmp_path / 'run', config, device='cpu')
     assert calls == [len(views)]  # the training views only
@@ -116,6 +116,30 @@ def test_training_starts_from_the_alignment(tmp_path: Path, monkeypatch: pytest.
     assert torch.equal(poses[held_out], data.T_world_camera[held_out])  # held-out views keep their recorded pose
     expected = _corrected(data.T_world_camera[views].double().numpy(), wanted)
     np.testing.assert_allclose(poses[views].double().numpy(), expected, atol=1e-5)
+
+
+@pytest.mark.parametrize('applied', [False, True])
+def test_poses_are_refined_where_the_alignment_found_them_off(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                              applied: bool) -> None:
+    """``pose_refine_when: aligned`` (the tiny, default and paper presets): the photometric refinement runs only
+    when the alignment corrected the poses; poses that agree with the images stay as recorded (``always``, the
+    ``cpu`` preset's, refines them anyway: test_pose_refinement.py)."""
+    refined = applied
+    scene = make_sphere_scene(tmp_path / 'spheres', views=10, size=32, fruits=6, write_ply=True)
+    views = load_dataset(scene, eval_every=MICRO.data.eval_every).train_indices.numpy()
+    start = np.zeros((views.max() + 1, 6))
+    if applied:
+        start[views, 3] = np.linspace(-0.01, 0.01, len(views))
+    monkeypatch.setattr('fruitnerfpp_ros.core.training.pose_start.align_poses',
+                        lambda images, *args, **kwargs: PoseAlignment(start[views], {'applied': applied}))
+    config = replace_nested(MICRO, {'pose_alignment': {'enabled': True}, 'geometry': {
+        'pose_lr': 1e-2, 'pose_start_fraction': 0.0, 'pose_refine_when': 'aligned'}})
+    train(scene, tmp_path / 'run', config, device='cpu')
+    stored = load_config(TrainConfig, tmp_path / 'run' / 'config.yaml')
+    assert stored.geometry.pose_lr == (1e-2 if refined else 0.0)  # what ran: a resume reads the same
+    corrections = load_trained_scene(tmp_path / 'run', device='cpu').pose_corrections.correction.detach().numpy()
+    moved = np.abs(corrections[views] - start[views]).max()
+    assert (moved > 1e-4) if refined else (moved == 0.0)
 
 
 def test_a_config_that_cannot_work_is_refused() -> None:

@@ -19,7 +19,7 @@ from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement, rotati
 from test.core.training.stand_in_scene import make_sphere_scene
 from test.core.training.test_trainer import MICRO
 
-REFINED = replace_nested(MICRO, {'geometry': {'pose_lr': 1e-3}})
+REFINED = replace_nested(MICRO, {'geometry': {'pose_lr': 1e-3, 'pose_refine_when': 'always'}})
 
 
 @pytest.fixture(scope='module')

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 import threading
 import time
@@ -53,7 +54,9 @@ def test_run_dir_layout_and_metrics(scene: Path, tmp_path: Path) -> None:
     parts = (summary.prepare_s, *(s.wall_s for s in summary.stages), summary.evaluate_s, summary.checkpoint_s)
     assert min(parts) > 0.0 and sum(parts) <= wall
     run = RunDir(tmp_path / 'run')
-    assert load_config(TrainConfig, run.config_path) == MICRO
+    # the config that ran: the alignment kept the scene's exact poses, so tiny's refinement (``aligned``) did not run
+    assert json.loads((run.root / 'pose_alignment.json').read_text())['applied'] is False
+    assert load_config(TrainConfig, run.config_path) == replace_nested(MICRO, {'geometry': {'pose_lr': 0.0}})
     assert run.latest_checkpoint.is_file() and not list(run.checkpoint_dir.glob('*.tmp'))
     records = run.read_metrics()
     ends = [r for r in records if r.get('event') == 'stage_end']
