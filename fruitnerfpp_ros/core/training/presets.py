@@ -18,11 +18,11 @@ __all__ = ['preset']
 
 
 #: Odometry noise in every preset: the poses are aligned to the images before training (core/data/pose_alignment.py;
-#: exact poses pass its check unchanged, 2-5 s on a `cpu` suite scene, 31 s on 300 views of 512 px with 2 cores)
+#: exact poses pass its check unchanged, 2-12 s on a `cpu` suite scene, 31 s on 300 views of 512 px, 2 cores)
 #: and refined from 10 % of stage 1 at 1e-3 only where the alignment found them off. `tiny` on the pose-noise row
 #: 0.242 -> 0.836, its 12 noise-free `cpu` scenes unchanged; the refinement always on lost two noise-free rows
 #: 0.08-0.09 (docs/results/pose_refinement.md, session 35).
-_POSES_IF_OFF = dict(pose_lr=1e-3, pose_start_fraction=0.1, pose_refine_when='aligned')
+_REFINE_POSES_IF_OFF = dict(pose_lr=1e-3, pose_start_fraction=0.1, pose_refine_when='aligned')
 
 
 def _tiny() -> TrainConfig:
@@ -42,7 +42,7 @@ def _tiny() -> TrainConfig:
         # test scene went from F1 0.21 to 0.95. Occupancy cells of 0.75 d (48 over the test box).
         data=DataConfig(min_view_fraction=0.1, points_growth=3.0),
         render=RenderConfig(occupancy_cell=0.75, occupancy_resolution=64, occupancy_update_every=8, chunk_rays=4096),
-        geometry=GeometryStageConfig(iterations=600, batch_rays=640, lr=2e-2, **_POSES_IF_OFF),
+        geometry=GeometryStageConfig(iterations=600, batch_rays=640, lr=2e-2, **_REFINE_POSES_IF_OFF),
         # fruit_fraction 0.5 taught a fruit prior of 50 % (fruit is ~5 % of a view): fruit probability >= 0.9 spread
         # over the canopy. 0.15 and 400 steps: held-out IoU 0.28 -> 0.56 / 0.50 / 0.30 on three seeds of the test
         # scene (docs/results/tiny_preset.md).
@@ -79,12 +79,13 @@ def _cpu() -> TrainConfig:
 
 
 def _default() -> TrainConfig:
-    return TrainConfig(geometry=GeometryStageConfig(**_POSES_IF_OFF), pose_alignment=PoseAlignmentConfig(enabled=True))
+    return TrainConfig(geometry=GeometryStageConfig(**_REFINE_POSES_IF_OFF),
+                       pose_alignment=PoseAlignmentConfig(enabled=True))
 
 
 def _paper() -> TrainConfig:
     return TrainConfig(
-        geometry=GeometryStageConfig(iterations=30000, batch_rays=4096, lr=1e-2, **_POSES_IF_OFF),
+        geometry=GeometryStageConfig(iterations=30000, batch_rays=4096, lr=1e-2, **_REFINE_POSES_IF_OFF),
         pose_alignment=PoseAlignmentConfig(enabled=True),
         semantic=SemanticStageConfig(iterations=10000, batch_rays=4096, lr=1e-2),
         instance=InstanceStageConfig(iterations=20000, groups=8, group_size=8, pixels_per_fruit=32),

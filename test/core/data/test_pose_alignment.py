@@ -124,7 +124,6 @@ def test_poses_are_refined_where_the_alignment_found_them_off(tmp_path: Path, mo
     """``pose_refine_when: aligned`` (the tiny, default and paper presets): the photometric refinement runs only
     when the alignment corrected the poses; poses that agree with the images stay as recorded (``always``, the
     ``cpu`` preset's, refines them anyway: test_pose_refinement.py)."""
-    refined = applied
     scene = make_sphere_scene(tmp_path / 'spheres', views=10, size=32, fruits=6, write_ply=True)
     views = load_dataset(scene, eval_every=MICRO.data.eval_every).train_indices.numpy()
     start = np.zeros((views.max() + 1, 6))
@@ -136,10 +135,10 @@ def test_poses_are_refined_where_the_alignment_found_them_off(tmp_path: Path, mo
         'pose_lr': 1e-2, 'pose_start_fraction': 0.0, 'pose_refine_when': 'aligned'}})
     train(scene, tmp_path / 'run', config, device='cpu')
     stored = load_config(TrainConfig, tmp_path / 'run' / 'config.yaml')
-    assert stored.geometry.pose_lr == (1e-2 if refined else 0.0)  # what ran: a resume reads the same
+    assert stored.geometry.pose_lr == (1e-2 if applied else 0.0)  # what ran: a resume reads the same
     corrections = load_trained_scene(tmp_path / 'run', device='cpu').pose_corrections.correction.detach().numpy()
     moved = np.abs(corrections[views] - start[views]).max()
-    assert (moved > 1e-4) if refined else (moved == 0.0)
+    assert (moved > 1e-4) if applied else (moved == 0.0)
 
 
 def test_a_config_that_cannot_work_is_refused() -> None:

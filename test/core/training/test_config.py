@@ -27,7 +27,7 @@ def test_presets_scale_up() -> None:
     assert cpu.field == tiny.field and cpu.instance == tiny.instance
     rays = [c.geometry.iterations * c.geometry.batch_rays for c in (tiny, cpu, default, paper)]
     assert rays == sorted(rays) and len(set(rays)) == 4  # each preset trains its geometry on more rays
-    # every preset aligns the poses to the images; only `cpu` refines them where the alignment kept them
+    # every preset aligns the poses to the images; only `cpu` refines them also where the alignment kept them
     assert all(c.pose_alignment.enabled and c.geometry.pose_lr > 0 for c in (tiny, cpu, default, paper))
     refine_when = [c.geometry.pose_refine_when for c in (tiny, cpu, default, paper)]
     assert refine_when == ['aligned', 'always', 'aligned', 'aligned']
