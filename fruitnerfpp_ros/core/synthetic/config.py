@@ -79,6 +79,12 @@ class SynthConfig:
     and the bag); the images are rendered from the true poses."""
     pose_noise_deg: float = 0.0
     """Standard deviation (degrees, per axis) of a rotation noise on the recorded camera orientations."""
+    pass_offset_m: float = 0.0
+    """Odometry drift between the two sides: the recorded poses of every view on the +y side of the tree (a row's
+    return pass) shifted along x by this (m), as the error a robot's odometry has built up after the turn. Feature
+    tracks cannot see it: no view of one side shares features with a view of the other."""
+    pass_offset_deg: float = 0.0
+    """... and turned by this (degrees) about the vertical through those views' mean position."""
     row_standoff_m: float = 2.0
     """``row``: distance (m) from the row centre line (the trunk at y = 0) to the camera; orchards: 1.5-3 m. Must
     leave the camera outside the crown."""
@@ -144,6 +150,10 @@ class SynthConfig:
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0.0 <= value < 1e3:
                 raise SynthError(f'{name} must be a number >= 0, got {value!r}')
+        for name in ('pass_offset_m', 'pass_offset_deg'):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not abs(value) < 1e3:
+                raise SynthError(f'{name} must be a number, got {value!r}')
         if self.trajectory not in TRAJECTORIES:
             raise SynthError(f'unknown trajectory {self.trajectory!r}; expected one of {", ".join(TRAJECTORIES)}')
         if not 10.0 <= float(self.fov_deg) <= 120.0:

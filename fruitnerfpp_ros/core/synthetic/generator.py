@@ -228,8 +228,8 @@ def _recorded_config(config: SynthConfig) -> dict:
 
 def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> list[np.ndarray]:
     """The poses as a robot would record them: with ``pose_noise_m`` / ``pose_noise_deg`` Gaussian errors (its own
-    random stream, so noise-free datasets stay byte-identical)."""
-    poses = [np.asarray(T, dtype=np.float64) for T in poses]
+    random stream, so noise-free datasets stay byte-identical), then the +y side's drift (``pass_offset_*``)."""
+    poses = _pass_offset([np.asarray(T, dtype=np.float64) for T in poses], config)
     if config.pose_noise_m == 0 and config.pose_noise_deg == 0:
         return poses
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9D]))
@@ -240,6 +240,21 @@ def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> l
         noisy[:3, :3] = T[:3, :3] @ Rotation.from_rotvec(rotvec).as_matrix()
         noisy[:3, 3] = T[:3, 3] + config.pose_noise_m * rng.normal(size=3)
         out.append(noisy)
+    return out
+
+
+def _pass_offset(poses: list[np.ndarray], config: SynthConfig) -> list[np.ndarray]:
+    """``poses`` with those on the +y side moved rigidly by ``pass_offset_m`` along x and turned by
+    ``pass_offset_deg`` about the vertical through their mean position."""
+    back = [i for i, T in enumerate(poses) if T[1, 3] > 0]
+    if (config.pass_offset_m == 0 and config.pass_offset_deg == 0) or not back:
+        return poses
+    centre = np.mean([poses[i][:3, 3] for i in back], axis=0)
+    turn = Rotation.from_euler('z', config.pass_offset_deg, degrees=True).as_matrix()
+    out = [T.copy() for T in poses]
+    for i in back:
+        out[i][:3, :3] = turn @ poses[i][:3, :3]
+        out[i][:3, 3] = turn @ (poses[i][:3, 3] - centre) + centre + np.array([config.pass_offset_m, 0.0, 0.0])
     return out
 
 
