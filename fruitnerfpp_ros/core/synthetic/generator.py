@@ -227,8 +227,8 @@ def _recorded_config(config: SynthConfig) -> dict:
 
 
 def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> list[np.ndarray]:
-    """The poses as a robot would record them: with ``pose_noise_m`` / ``pose_noise_deg`` Gaussian errors (its own
-    random stream, so noise-free datasets stay byte-identical), then the +y side's drift (``pass_offset_*``)."""
+    """The poses as a robot would record them: the +y side's drift (``pass_offset_*``), then ``pose_noise_m`` /
+    ``pose_noise_deg`` Gaussian errors (their own random stream, so noise-free datasets stay byte-identical)."""
     poses = _pass_offset([np.asarray(T, dtype=np.float64) for T in poses], config)
     if config.pose_noise_m == 0 and config.pose_noise_deg == 0:
         return poses
