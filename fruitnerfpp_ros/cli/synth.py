@@ -144,7 +144,7 @@ def register(subparsers: Any) -> None:
     parser.add_argument('--pose-noise', nargs=2, metavar=('METRES', 'DEGREES'),
                         help='odometry error: per-axis standard deviations of noise on the recorded camera positions '
                              'and orientations (images stay rendered from the true poses)')
-    parser.add_argument('--pass-offset', nargs=2, metavar=('METRES', 'DEGREES'),
+    parser.add_argument('--pass-offset', nargs=2, type=float, metavar=('METRES', 'DEGREES'),
                         help='odometry drift between the sides: the recorded poses of the views on the +y side (a '
                              "row's return pass) shifted along x and turned about the vertical")
     row = parser.add_argument_group('a row of trees (--scene row)')
@@ -195,11 +195,7 @@ def _config_from_args(args: argparse.Namespace) -> Any:
         except ValueError:
             raise SynthError(f'--pose-noise: expected two numbers (metres, degrees), got {args.pose_noise}') from None
     if args.pass_offset is not None:
-        try:
-            overrides['pass_offset_m'], overrides['pass_offset_deg'] = (float(v) for v in args.pass_offset)
-        except ValueError:
-            raise SynthError(f'--pass-offset: expected two numbers (metres, degrees), got {args.pass_offset}') \
-                from None
+        overrides['pass_offset_m'], overrides['pass_offset_deg'] = args.pass_offset
     return dataclasses.replace(base, **overrides)
 
 

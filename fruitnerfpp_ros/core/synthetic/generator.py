@@ -246,16 +246,16 @@ def _noisy_poses(poses: list[np.ndarray] | np.ndarray, config: SynthConfig) -> l
 def _pass_offset(poses: list[np.ndarray], config: SynthConfig) -> list[np.ndarray]:
     """``poses`` with those on the +y side moved rigidly by ``pass_offset_m`` along x and turned by
     ``pass_offset_deg`` about the vertical through their mean position."""
-    back = [i for i, T in enumerate(poses) if T[1, 3] > 0]
-    if (config.pass_offset_m == 0 and config.pass_offset_deg == 0) or not back:
+    stacked = np.stack(poses)
+    back = stacked[:, 1, 3] > 0
+    if (config.pass_offset_m == 0 and config.pass_offset_deg == 0) or not back.any():
         return poses
-    centre = np.mean([poses[i][:3, 3] for i in back], axis=0)
-    turn = Rotation.from_euler('z', config.pass_offset_deg, degrees=True).as_matrix()
-    out = [T.copy() for T in poses]
-    for i in back:
-        out[i][:3, :3] = turn @ poses[i][:3, :3]
-        out[i][:3, 3] = turn @ (poses[i][:3, 3] - centre) + centre + np.array([config.pass_offset_m, 0.0, 0.0])
-    return out
+    centre = stacked[back, :3, 3].mean(axis=0)
+    drift = np.eye(4)                                   # turn about the vertical through `centre`, then shift
+    drift[:3, :3] = Rotation.from_euler('z', config.pass_offset_deg, degrees=True).as_matrix()
+    drift[:3, 3] = centre - drift[:3, :3] @ centre + np.array([config.pass_offset_m, 0.0, 0.0])
+    stacked[back] = drift @ stacked[back]
+    return list(stacked)
 
 
 def _sample_surface(depth: np.ndarray, rgb: np.ndarray, T_world_camera: np.ndarray, K: CameraIntrinsics, count: int,
