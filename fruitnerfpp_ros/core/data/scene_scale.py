@@ -36,7 +36,8 @@ import torch.nn.functional as F
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['ScaleConfig', 'SceneScale', 'dilate_square', 'estimate_scene_scale']
+__all__ = ['ScaleConfig', 'SceneScale', 'FruitVotes', 'dilate_square', 'estimate_scene_scale', 'fruit_voxel_mask',
+           'vote_fruit_masks']
 
 
 @dataclass(frozen=True)
@@ -131,21 +132,25 @@ class SceneScale(NamedTuple):
                 'n_fruit_voxels': self.n_fruit_voxels, 'n_masks_measured': self.n_masks_measured}
 
 
-class _Votes(NamedTuple):
-    centres: torch.Tensor      # [N, 3] voxel centres
+class FruitVotes(NamedTuple):
+    """A visual-hull vote of fruit masks over a voxel grid (:func:`vote_fruit_masks`)."""
+
+    centres: torch.Tensor      # [N, 3] voxel centres, the grid's C order (x slowest)
     seen: torch.Tensor         # [N] views that see each voxel
     agree: torch.Tensor        # [N] views whose (dilated) fruit mask holds it
     voxel: float               # voxel size, m
     moments: torch.Tensor      # [N, 6] sum of d d^T (xx yy zz xy xz yz), d: unit direction to an agreeing camera
+    shape: tuple[int, int, int]  # voxels along x, y, z
 
 
-def _grid(box: np.ndarray, resolution: int, device: torch.device) -> tuple[torch.Tensor, float]:
+def _grid(box: np.ndarray, resolution: int, device: torch.device) -> tuple[torch.Tensor, float, tuple[int, int, int]]:
     size = box[1] - box[0]
     voxel = float(size.max()) / resolution
     counts = np.maximum(1, np.ceil(size / voxel)).astype(int)
     axes = [torch.arange(n, device=device, dtype=torch.float32) * voxel + float(box[0][i]) + 0.5 * voxel
             for i, n in enumerate(counts)]
-    return torch.stack(torch.meshgrid(*axes, indexing='ij'), -1).reshape(-1, 3), voxel
+    shape = (int(counts[0]), int(counts[1]), int(counts[2]))
+    return torch.stack(torch.meshgrid(*axes, indexing='ij'), -1).reshape(-1, 3), voxel, shape
 
 
 def _project(centres: torch.Tensor, T_world_camera: torch.Tensor, K: torch.Tensor, width: int, height: int
@@ -169,9 +174,11 @@ def dilate_square(image: torch.Tensor, radius: int) -> torch.Tensor:
     return F.max_pool2d(rows, (k, 1), stride=1, padding=(radius, 0))
 
 
-def _vote(dataset: SceneDataset, views: list[int], box: np.ndarray, resolution: int, device: torch.device
-          ) -> _Votes:
-    centres, voxel = _grid(box, resolution, device)
+def vote_fruit_masks(dataset: SceneDataset, views: list[int], box: np.ndarray, resolution: int,
+                     device: torch.device) -> FruitVotes:
+    """How many of ``views`` see, and put on their fruit mask, each voxel of a grid over ``box`` with
+    ``resolution`` voxels along its longest side (``dataset``'s poses)."""
+    centres, voxel, shape = _grid(box, resolution, device)
     seen = torch.zeros(len(centres), dtype=torch.int32, device=device)
     agree = torch.zeros_like(seen)
     moments = torch.zeros(len(centres), 6, device=device)
@@ -193,7 +200,7 @@ def _vote(dataset: SceneDataset, views: list[int], box: np.ndarray, resolution: 
         d = F.normalize(T[:3, 3] - centres, dim=1) * agrees[:, None].to(centres.dtype)
         moments += torch.stack([d[:, 0] * d[:, 0], d[:, 1] * d[:, 1], d[:, 2] * d[:, 2], d[:, 0] * d[:, 1],
                                 d[:, 0] * d[:, 2], d[:, 1] * d[:, 2]], 1)
-    return _Votes(centres, seen, agree, voxel, moments)
+    return FruitVotes(centres, seen, agree, voxel, moments, shape)
 
 
 def largest_eigenvalue_sym3(m: torch.Tensor) -> torch.Tensor:
@@ -217,8 +224,11 @@ def largest_eigenvalue_sym3(m: torch.Tensor) -> torch.Tensor:
     return largest.to(m.dtype)
 
 
-def _fruit_voxels(votes: _Votes, min_views: int, min_fraction: float, min_seen_share: float,
-                  min_angle_deg: float = 0.0) -> torch.Tensor:
+def fruit_voxel_mask(votes: FruitVotes, min_views: int, min_fraction: float, min_seen_share: float,
+                     min_angle_deg: float = 0.0) -> torch.Tensor:
+    """[N] bool: the voxels at least ``min_views`` views and ``min_fraction`` of those that see them agree with,
+    seen by ``min_seen_share`` of the best-seen voxel's views (and, with ``min_angle_deg``, from directions spread
+    at least that wide)."""
     seen = votes.seen.float()
     out = ((votes.agree >= min_views) & (votes.agree.float() >= min_fraction * seen.clamp_min(1.0))
            & (seen >= min_seen_share * float(seen.max())))
@@ -273,27 +283,29 @@ def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: 
     """
     device = torch.device(device)
     views = [int(v) for v in dataset.train_indices]
-    coarse = _vote(dataset, views, np.asarray(search_box, np.float64), config.coarse_resolution, device)
-    candidates = _fruit_voxels(coarse, config.min_views, 0.5 * config.min_fraction, config.min_seen_share)
+    coarse = vote_fruit_masks(dataset, views, np.asarray(search_box, np.float64), config.coarse_resolution, device)
+    candidates = fruit_voxel_mask(coarse, config.min_views, 0.5 * config.min_fraction, config.min_seen_share)
     region, n_fruit, diameters = None, 0, np.zeros(0)
 
-    def fruit_voxels(votes: _Votes) -> torch.Tensor:
-        return _fruit_voxels(votes, config.min_views, config.min_fraction, config.min_seen_share)
+    def fruit_voxels(votes: FruitVotes) -> torch.Tensor:
+        return fruit_voxel_mask(votes, config.min_views, config.min_fraction, config.min_seen_share)
 
-    def held_voxels(votes: _Votes) -> torch.Tensor:
+    def held_voxels(votes: FruitVotes) -> torch.Tensor:
         """The voxels the region holds: the fruit voxels, and those placed by views spread wide enough."""
         if config.region_fraction is None:
             return fruit_voxels(votes)
-        return fruit_voxels(votes) | _fruit_voxels(votes, config.min_views, config.region_fraction,
-                                                   config.min_seen_share, config.region_view_angle_deg)
+        return fruit_voxels(votes) | fruit_voxel_mask(votes, config.min_views, config.region_fraction,
+                                                      config.min_seen_share, config.region_view_angle_deg)
 
     if int(candidates.sum()) >= 4:
-        fine = _vote(dataset, views, _region(coarse.centres[candidates], coarse.voxel), config.fine_resolution, device)
+        fine = vote_fruit_masks(dataset, views, _region(coarse.centres[candidates], coarse.voxel),
+                                config.fine_resolution, device)
         held = held_voxels(fine)
         for _ in range(config.refine_votes):
             if int(held.sum()) < 4:
                 break
-            finer = _vote(dataset, views, _region(fine.centres[held], fine.voxel), config.fine_resolution, device)
+            finer = vote_fruit_masks(dataset, views, _region(fine.centres[held], fine.voxel), config.fine_resolution,
+                                     device)
             finer_held = held_voxels(finer)
             if int(finer_held.sum()) < max(4.0, config.refine_min_share * int(held.sum())):
                 break  # the finer cells lost the fruit (see refine_min_share): the vote before stands

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from dataclasses import field as _field
 from typing import Any
 
+from fruitnerfpp_ros.core.data.pass_registration import PassRegistrationConfig
 from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignmentConfig
 from fruitnerfpp_ros.core.data.scene_scale import ScaleConfig
 from fruitnerfpp_ros.core.fields.fruit_field import FieldConfig, HashGridConfig
@@ -322,6 +323,9 @@ class TrainConfig:
     pose_alignment: PoseAlignmentConfig = _field(default_factory=PoseAlignmentConfig)
     """Feature tracks and a bundle adjustment of the recorded poses before training (core/data/pose_alignment.py):
     the start of the geometry stage's pose corrections."""
+    pass_registration: PassRegistrationConfig = _field(default_factory=PassRegistrationConfig)
+    """A row drive's return pass registered onto its first pass on the fruit masks, after the pose alignment
+    (core/data/pass_registration.py): odometry's drift between the two sides of a row."""
     seed: int = 0
     """Seed of every random source (weights, samplers, jitter)."""
     checkpoint_every: int = 500

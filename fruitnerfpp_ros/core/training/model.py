@@ -120,7 +120,8 @@ class FruitNeRFModel(nn.Module):
         fruit_diameter_m: the scene's fruit diameter (every length of the field and the marching follows from it).
         device: torch device.
         pose_correction: optional [V, 6] starting pose corrections (the pose alignment's; zeros when None). They
-            exist with ``geometry.pose_lr`` > 0 or ``pose_alignment.enabled`` (at pose_lr 0 they stay fixed).
+            exist with ``geometry.pose_lr`` > 0, ``pose_alignment.enabled`` or ``pass_registration.enabled`` (at
+            pose_lr 0 they stay fixed; a resume loads them too).
     """
 
     def __init__(self, config: TrainConfig, dataset: SceneDataset, aabb: np.ndarray, fruit_diameter_m: float,
@@ -134,7 +135,7 @@ class FruitNeRFModel(nn.Module):
         self.grid = occupancy_grid(config, aabb, fruit_diameter_m).to(device)
         trained = torch.zeros(dataset.num_views, dtype=torch.bool)
         trained[dataset.train_indices] = True
-        refines = config.geometry.pose_lr > 0 or config.pose_alignment.enabled  # a resume loads them too
+        refines = config.geometry.pose_lr > 0 or config.pose_alignment.enabled or config.pass_registration.enabled
         self.pose_refinement = PoseRefinement(trained, pose_correction).to(device) if refines else None
         self.register_buffer('images', dataset.images.to(device), persistent=False)
         self.register_buffer('semantics', dataset.semantic_masks.to(device), persistent=False)

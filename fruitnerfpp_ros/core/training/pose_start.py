@@ -1,25 +1,33 @@
-"""Where the geometry stage's poses start: the recorded ones, or the pose alignment's, refined or held.
+"""Where the geometry stage's poses start: the recorded ones, or the pose alignment's and the pass registration's,
+refined or held; and the scene box and scale measured on them.
 
-:func:`aligned_poses` runs the feature-based alignment (core/data/pose_alignment.py) on the training views;
-:func:`refinement_after` turns the photometric refinement (``geometry.pose_lr``) off where the config asks for it
-only after a correction (``pose_refine_when: aligned``) and the alignment kept the recorded poses;
-:func:`corrected_poses` applies the corrections as :class:`PoseRefinement` does (for the scene measurement).
+:func:`start_poses` runs it all: :func:`aligned_poses` (the feature-based alignment, core/data/pose_alignment.py,
+of the training views), :func:`refinement_after` (the photometric refinement, ``geometry.pose_lr``, off where the
+config asks for it only after a correction, ``pose_refine_when: aligned``, and the alignment kept the recorded
+poses), the scene measurement, then the registration of a row drive's return pass onto its first pass
+(core/data/pass_registration.py), after which the scene is measured again when it moved the pass.
+:func:`corrected_poses` applies corrections as :class:`PoseRefinement` does.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
+from fruitnerfpp_ros.core.data.pass_registration import PassRegistration, register_passes
 from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignment, align_poses
+from fruitnerfpp_ros.core.data.scene_scale import SceneScale
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
+from fruitnerfpp_ros.core.training.scene_box import measure_scene
 
-__all__ = ['aligned_poses', 'refinement_after', 'corrected_poses']
+__all__ = ['PoseStart', 'start_poses', 'aligned_poses', 'refinement_after', 'corrected_poses', 'with_transform']
 
 log = logging.getLogger(__name__)
 
@@ -57,3 +65,58 @@ def corrected_poses(dataset: SceneDataset, correction: np.ndarray) -> torch.Tens
     trained[dataset.train_indices] = True
     with torch.no_grad():
         return PoseRefinement(trained, correction)(dataset.T_world_camera)
+
+
+def with_transform(dataset: SceneDataset, correction: np.ndarray, views: np.ndarray, transform: np.ndarray
+                   ) -> np.ndarray:
+    """Corrections [V, 6] that put ``views`` where ``transform`` [4, 4] moves their poses corrected by
+    ``correction`` [V, 6], the other views where ``correction`` puts them (up to the gauge's common shift)."""
+    poses = corrected_poses(dataset, correction).double().numpy()
+    recorded = dataset.T_world_camera.double().numpy()
+    poses[views] = transform[None] @ poses[views]
+    out = np.zeros((dataset.num_views, 6))
+    out[:, :3] = Rotation.from_matrix(np.swapaxes(recorded[:, :3, :3], 1, 2) @ poses[:, :3, :3]).as_rotvec()
+    out[:, 3:] = poses[:, :3, 3] - recorded[:, :3, 3]
+    return out
+
+
+@dataclass(frozen=True)
+class PoseStart:
+    """The poses a run starts from and the scene measured on them.
+
+    Attributes:
+        config: the run's config (``geometry.pose_lr`` 0 where :func:`refinement_after` turned the refinement off).
+        correction: [V, 6] starting pose corrections, or None (the recorded poses).
+        aabb: [2, 3] scene box.
+        scale: the scene's measured scale.
+        alignment: the pose alignment's outcome (None when off).
+        registration: the pass registration's outcome (None when off).
+    """
+
+    config: TrainConfig
+    correction: np.ndarray | None
+    aabb: np.ndarray
+    scale: SceneScale
+    alignment: PoseAlignment | None
+    registration: PassRegistration | None
+
+
+def start_poses(dataset: SceneDataset, config: TrainConfig, device: torch.device) -> PoseStart:
+    """Align the poses, measure the scene, register the passes (measuring again when they moved); see above."""
+    alignment = aligned_poses(dataset, config)
+    config = refinement_after(alignment, config)
+    correction = None if alignment is None else alignment.correction
+    posed = dataset if correction is None else dataclasses.replace(
+        dataset, T_world_camera=corrected_poses(dataset, correction))
+    aabb, scale = measure_scene(posed, config, device)
+    registration = None
+    if config.pass_registration.enabled:
+        registration = register_passes(posed, posed.T_world_camera, aabb, scale.fruit_diameter_m,
+                                       config.pass_registration, config.scale, device=device)
+        log.info('pass registration: %s', registration.report)
+        if registration.applied:
+            correction = with_transform(dataset, np.zeros((dataset.num_views, 6)) if correction is None
+                                        else correction, registration.moved_views, registration.transform)
+            posed = dataclasses.replace(dataset, T_world_camera=corrected_poses(dataset, correction))
+            aabb, scale = measure_scene(posed, config, device)
+    return PoseStart(config, correction, aabb, scale, alignment, registration)

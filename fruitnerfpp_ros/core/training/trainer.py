@@ -30,11 +30,10 @@ from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, psnr_from_mse
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 from fruitnerfpp_ros.core.training.pose_refinement import write_refined_poses
-from fruitnerfpp_ros.core.training.pose_start import aligned_poses, corrected_poses, refinement_after
+from fruitnerfpp_ros.core.training.pose_start import start_poses
 from fruitnerfpp_ros.core.training.run_dir import RunDir
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.data.scene_scale import SceneScale
-from fruitnerfpp_ros.core.training.scene_box import measure_scene
 from fruitnerfpp_ros.core.training.stages import STAGE_NAMES, ParamGroup, TrainingStage, build_stages
 from fruitnerfpp_ros.core.training.trained_scene import CHECKPOINT_VERSION, SCALE_JSON, scale_from_json
 from fruitnerfpp_ros.errors import TrainingError
@@ -45,6 +44,8 @@ log = logging.getLogger(__name__)
 
 #: The pose alignment's figures (core/data/pose_alignment.py), written when it runs.
 POSE_ALIGNMENT_JSON = 'pose_alignment.json'
+#: The pass registration's figures (core/data/pass_registration.py), written when it runs.
+PASS_REGISTRATION_JSON = 'pass_registration.json'
 
 #: Stage names, in order; progress phases are ``Phase.training(name)``.
 STAGES = STAGE_NAMES
@@ -177,7 +178,7 @@ class _Checkpointer:
         """Load the model and generator; returns the counters and the optimiser state (None at a stage start)."""
         self.model.field.load_state_dict(state['field'])
         self.model.grid.load_state_dict(state['grid'])
-        if self.model.pose_refinement is not None:
+        if self.model.pose_refinement is not None and state.get('poses') is not None:
             self.model.pose_refinement.load_state_dict(state['poses'])
         self.generator.set_state(state['generator'])
         return _Progress.from_state(state), state['optimizer']
@@ -269,15 +270,12 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     if state is not None and Path(state['dataset_dir']).resolve() != Path(dataset_dir).resolve():
         log.warning('resume: dataset %s differs from the one the run started with (%s)', dataset_dir,
                     state['dataset_dir'])
-    alignment = None
+    start = None
     if state is not None:
         aabb, scale = np.asarray(state['aabb']), scale_from_json(state['scale'])
     else:
-        alignment = aligned_poses(dataset, config)
-        config = refinement_after(alignment, config)
-        measured = dataset if alignment is None else dataclasses.replace(
-            dataset, T_world_camera=corrected_poses(dataset, alignment.correction))
-        aabb, scale = measure_scene(measured, config, dev)
+        start = start_poses(dataset, config, dev)
+        config, aabb, scale = start.config, start.aabb, start.scale
     stages = build_stages(config, dataset, aabb)
     run.create()
     save_config(config, run.config_path)
@@ -286,11 +284,13 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     if scale.source == 'default':
         log.warning('could not measure the fruit size from the masks (%d fruit voxels); using %.3f m: set '
                     'scale.fruit_diameter_m if that is far off', scale.n_fruit_voxels, scale.fruit_diameter_m)
-    # the geometry stage's pose corrections start at the alignment's (a resume: at its checkpoint's)
+    # the geometry stage's pose corrections start at the alignment's and registration's (a resume: its checkpoint's)
     model = FruitNeRFModel(config, dataset, aabb, scale.fruit_diameter_m, dev,
-                           None if alignment is None else alignment.correction)
-    if alignment is not None:
-        atomic_write_text(run.root / POSE_ALIGNMENT_JSON, json.dumps(alignment.report, indent=1))
+                           None if start is None else start.correction)
+    if start is not None and start.alignment is not None:
+        atomic_write_text(run.root / POSE_ALIGNMENT_JSON, json.dumps(start.alignment.report, indent=1))
+    if start is not None and start.registration is not None:
+        atomic_write_text(run.root / PASS_REGISTRATION_JSON, json.dumps(start.registration.report, indent=1))
     if model.depth_check is not None:  # RGB-D: which views' depth agreed with their neighbours'
         atomic_write_text(run.root / 'depth_check.json', json.dumps(model.depth_check.to_json(), indent=1))
     generator = torch.Generator().manual_seed(config.seed)
