@@ -40,6 +40,7 @@ def test_holdout_suite_shares_no_seed_and_adds_axes() -> None:
     assert any(c.cluster_scale > 1 for c in held) and any(c.fov_deg != 50 for c in held)
     assert any(c.trajectory == 'row' and c.camera_pitch_deg < 0 for c in held)
     assert any(s.via_bag and s.synth_config().resolution == (480, 360) for s in SUITES['holdout'].scenes)
+    assert any(c.pass_offset_m > 0 and c.pass_offset_deg > 0 for c in held)
 
 
 def test_quick_suite_is_the_four_scenes() -> None:
