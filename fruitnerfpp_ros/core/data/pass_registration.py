@@ -22,7 +22,6 @@ meet:
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -160,14 +159,13 @@ def _score(occupied: torch.Tensor, origin: torch.Tensor, voxel: float, points: t
     return out
 
 
-def register_passes(dataset: SceneDataset, T_world_camera: torch.Tensor, box: np.ndarray, fruit_diameter_m: float,
-                    config: PassRegistrationConfig, scale: ScaleConfig = ScaleConfig(), *,
-                    device: torch.device | str = 'cpu') -> PassRegistration:
+def register_passes(dataset: SceneDataset, box: np.ndarray, fruit_diameter_m: float, config: PassRegistrationConfig,
+                    scale: ScaleConfig = ScaleConfig(), *, device: torch.device | str = 'cpu') -> PassRegistration:
     """The rigid offset of the later pass's poses that makes both passes' fruit meet (see the module docstring).
 
     Args:
-        dataset: the loaded dataset (masks, intrinsics); its training views are registered.
-        T_world_camera: [V, 4, 4] the poses to start from (the pose alignment's, when it ran).
+        dataset: the loaded dataset (masks, intrinsics, the poses to start from: the pose alignment's, when it
+            ran); its training views are registered.
         box: [2, 3] the scene box (m) to vote over.
         fruit_diameter_m: the scene's fruit diameter (the vote's voxel follows from it).
         config: the search and its gate.
@@ -178,12 +176,11 @@ def register_passes(dataset: SceneDataset, T_world_camera: torch.Tensor, box: np
     device = torch.device(device)
     identity = np.eye(4)
     views = np.asarray(dataset.train_indices, dtype=np.int64)
-    T = torch.as_tensor(T_world_camera, dtype=torch.float32)
 
     def kept(reason: str, moved: np.ndarray = np.zeros(0, np.int64), **figures) -> PassRegistration:
         return PassRegistration(moved, identity, {'applied': False, 'reason': reason, **figures})
 
-    passes = split_passes(T.double().numpy(), views, config)
+    passes = split_passes(dataset.T_world_camera.double().numpy(), views, config)
     if isinstance(passes, str):
         return kept(passes)
     first, later, up, across = passes
@@ -191,8 +188,7 @@ def register_passes(dataset: SceneDataset, T_world_camera: torch.Tensor, box: np
     volume = float(np.prod(box[1] - box[0]))
     voxel = max(config.voxel_diameters * fruit_diameter_m, (volume / config.max_voxels) ** (1 / 3))
     resolution = max(8, int(math.ceil(float((box[1] - box[0]).max()) / voxel)))
-    posed = dataclasses.replace(dataset, T_world_camera=T)
-    votes = [vote_fruit_masks(posed, [int(v) for v in side], box, resolution, device) for side in (first, later)]
+    votes = [vote_fruit_masks(dataset, [int(v) for v in side], box, resolution, device) for side in (first, later)]
     fruit = [fruit_voxel_mask(v, scale.min_views, scale.min_fraction, scale.min_seen_share) for v in votes]
     counts = [int(f.sum()) for f in fruit]
     figures = {'views': [len(first), len(later)], 'fruit_voxels': counts, 'voxel_m': round(votes[0].voxel, 4)}
@@ -235,7 +231,7 @@ def register_passes(dataset: SceneDataset, T_world_camera: torch.Tensor, box: np
     best = int(scores[i])
     figures.update(score_zero=zero, score_best=best, gain=round(best / max(zero, 1), 3),
                    offset_m=np.round(shifts[i], 4).tolist(), yaw_deg=float(yaws[i]),
-                   pivot=np.round(pivot.cpu().numpy(), 4).tolist())
+                   pivot=np.round(pivot.double().cpu().numpy(), 4).tolist())
     if best < config.min_gain * max(zero, 1) or best - zero < config.min_gain_share * min(counts):
         return kept(f'no offset beats none by {config.min_gain}x and {config.min_gain_share} of the fruit voxels',
                     later, **figures)

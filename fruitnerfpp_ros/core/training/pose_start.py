@@ -111,8 +111,8 @@ def start_poses(dataset: SceneDataset, config: TrainConfig, device: torch.device
     aabb, scale = measure_scene(posed, config, device)
     registration = None
     if config.pass_registration.enabled:
-        registration = register_passes(posed, posed.T_world_camera, aabb, scale.fruit_diameter_m,
-                                       config.pass_registration, config.scale, device=device)
+        registration = register_passes(posed, aabb, scale.fruit_diameter_m, config.pass_registration, config.scale,
+                                       device=device)
         log.info('pass registration: %s', registration.report)
         if registration.applied:
             correction = with_transform(dataset, np.zeros((dataset.num_views, 6)) if correction is None
