@@ -56,6 +56,8 @@ def test_run_dir_layout_and_metrics(scene: Path, tmp_path: Path) -> None:
     run = RunDir(tmp_path / 'run')
     # the config that ran: the alignment kept the scene's exact poses, so tiny's refinement (``aligned``) did not run
     assert json.loads((run.root / 'pose_alignment.json').read_text())['applied'] is False
+    passes = json.loads((run.root / 'pass_registration.json').read_text())  # views all around: no passes
+    assert passes['applied'] is False and 'no passes' in passes['reason']
     assert load_config(TrainConfig, run.config_path) == replace_nested(MICRO, {'geometry': {'pose_lr': 0.0}})
     assert run.latest_checkpoint.is_file() and not list(run.checkpoint_dir.glob('*.tmp'))
     records = run.read_metrics()
