@@ -16,8 +16,8 @@ meet:
    the later pass (along the row, across it, vertical, and a yaw about the fruit's centre) is scored at once by
    the voxels both passes call fruit after moving the later pass's voxels (no view is projected again).
 4. The best offset is applied only when it beats no offset by ``min_gain`` and by ``min_gain_share`` of the fruit
-   voxels: on exact poses the best offset gains under 1 % by chance (the masks' noise; 15 row scenes of the
-   suites), on a drift of 5 cm it doubles the score.
+   voxels: on exact poses the best offset gains 0-3 % by chance (the masks' noise; the suites' rows and five more),
+   on a drift of 5 cm it doubles the score (docs/results/pose_refinement.md, session 36).
 """
 
 from __future__ import annotations
