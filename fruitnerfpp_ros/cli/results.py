@@ -162,6 +162,7 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     from fruitnerfpp_ros.cli.train import resolve_preset, resolve_train_config
     from fruitnerfpp_ros.core.clustering.workers import partition_pool
     from fruitnerfpp_ros.core.pipeline import run_pipeline
+    from fruitnerfpp_ros.core.training.pose_start import pose_start_lines
 
     from fruitnerfpp_ros.core.device import use_cpu_threads
 
@@ -179,5 +180,7 @@ def _run_pipeline(args: argparse.Namespace) -> int:
     if result.stopped:
         print(f'stopped early; resume with: fruitnerfpp run {args.data_dir} --out {args.out} --resume')
         return 1
+    for line in pose_start_lines(args.out):
+        print(line)
     print(result.table())
     return 0

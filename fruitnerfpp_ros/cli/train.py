@@ -53,6 +53,7 @@ def resolve_train_config(preset: str, config_file: str | Path | None, *, section
 def run(args: argparse.Namespace) -> int:
     from fruitnerfpp_ros.core.device import use_cpu_threads
     from fruitnerfpp_ros.core.training import train
+    from fruitnerfpp_ros.core.training.pose_start import pose_start_lines
 
     config = resolve_train_config(resolve_preset(args.preset, args.device), args.config)
     use_cpu_threads(config.cpu_threads, args.device)
@@ -61,6 +62,8 @@ def run(args: argparse.Namespace) -> int:
         print(f'{stage.name:9s} {stage.steps:6d} steps  {stage.wall_s:7.1f} s  '
               f'held-out PSNR {stage.eval.psnr:6.2f} dB  semantic IoU {stage.eval.semantic_iou:.3f}  '
               f'instance acc {stage.eval.instance_acc:.3f}')
+    for line in pose_start_lines(summary.run_dir):
+        print(line)
     stopped = '  (stopped early; continue with --resume)' if summary.stopped else ''
     print(f'run directory: {summary.run_dir}{stopped}')
     return 0

@@ -12,8 +12,10 @@ poses), the scene measurement, then the registration of a row drive's return pas
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
@@ -27,9 +29,15 @@ from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
 from fruitnerfpp_ros.core.training.scene_box import measure_scene
 
-__all__ = ['PoseStart', 'start_poses', 'aligned_poses', 'refinement_after', 'corrected_poses', 'with_transform']
+__all__ = ['PoseStart', 'start_poses', 'aligned_poses', 'refinement_after', 'corrected_poses', 'with_transform',
+           'pose_start_lines', 'POSE_ALIGNMENT_JSON', 'PASS_REGISTRATION_JSON']
 
 log = logging.getLogger(__name__)
+
+#: The pose alignment's figures (core/data/pose_alignment.py), written to the run directory when it runs.
+POSE_ALIGNMENT_JSON = 'pose_alignment.json'
+#: The pass registration's figures (core/data/pass_registration.py), written when it runs.
+PASS_REGISTRATION_JSON = 'pass_registration.json'
 
 
 def aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment | None:
@@ -120,3 +128,30 @@ def start_poses(dataset: SceneDataset, config: TrainConfig, device: torch.device
             posed = dataclasses.replace(dataset, T_world_camera=corrected_poses(dataset, correction))
             aabb, scale = measure_scene(posed, config, device)
     return PoseStart(config, correction, aabb, scale, alignment, registration)
+
+
+def pose_start_lines(run_dir: str | Path) -> list[str]:
+    """What a run's pose start did, in words, from its ``pose_alignment.json`` and ``pass_registration.json`` (a
+    line each that the run has)."""
+    def read(name: str) -> dict | None:
+        try:
+            return json.loads((Path(run_dir) / name).read_text())
+        except (OSError, ValueError):
+            return None
+
+    lines = []
+    aligned = read(POSE_ALIGNMENT_JSON)
+    if aligned is not None:
+        lines.append(f"poses aligned to the images: tracks' reprojection {aligned.get('reprojection_px_before')} -> "
+                     f"{aligned.get('reprojection_px_after')} px" if aligned.get('applied') else
+                     f"poses kept by the alignment: {aligned.get('reason', 'no correction')}")
+    passes = read(PASS_REGISTRATION_JSON)
+    if passes is not None:
+        if passes.get('applied'):
+            along, across, up = (100.0 * float(v) for v in passes['offset_m'])
+            lines.append(f"return pass moved onto the first: {along:+.1f} cm along the row, {across:+.1f} cm across, "
+                         f"{up:+.1f} cm up, {float(passes['yaw_deg']):+.1f} deg (its fruit meet the first pass's "
+                         f"{float(passes['gain']):.2f}x more)")
+        else:
+            lines.append(f"return pass kept: {passes.get('reason', 'no offset')}")
+    return lines

@@ -30,7 +30,7 @@ from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, psnr_from_mse
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 from fruitnerfpp_ros.core.training.pose_refinement import write_refined_poses
-from fruitnerfpp_ros.core.training.pose_start import start_poses
+from fruitnerfpp_ros.core.training.pose_start import PASS_REGISTRATION_JSON, POSE_ALIGNMENT_JSON, start_poses
 from fruitnerfpp_ros.core.training.run_dir import RunDir
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.data.scene_scale import SceneScale
@@ -42,10 +42,6 @@ __all__ = ['STAGES', 'StageSummary', 'TrainSummary', 'train', 'make_optimizer']
 
 log = logging.getLogger(__name__)
 
-#: The pose alignment's figures (core/data/pose_alignment.py), written when it runs.
-POSE_ALIGNMENT_JSON = 'pose_alignment.json'
-#: The pass registration's figures (core/data/pass_registration.py), written when it runs.
-PASS_REGISTRATION_JSON = 'pass_registration.json'
 
 #: Stage names, in order; progress phases are ``Phase.training(name)``.
 STAGES = STAGE_NAMES

@@ -14,7 +14,8 @@ from fruitnerfpp_ros.core.data.dataset import load_dataset
 from fruitnerfpp_ros.core.data.pass_registration import PassRegistrationConfig, split_passes
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
 from fruitnerfpp_ros.core.training.config import TrainConfig
-from fruitnerfpp_ros.core.training.pose_start import corrected_poses, start_poses, with_transform
+from fruitnerfpp_ros.core.training.pose_start import (PASS_REGISTRATION_JSON, POSE_ALIGNMENT_JSON, corrected_poses,
+                                                      pose_start_lines, start_poses, with_transform)
 from fruitnerfpp_ros.errors import ConfigError
 
 ROW = SynthConfig(fruit='apple', count=30, views=24, resolution=(160, 120), trajectory='row', seed=5,
@@ -131,3 +132,18 @@ def test_bad_settings_are_refused() -> None:
         PassRegistrationConfig(max_shift_m=(0.1, 0.1))
     with pytest.raises(ConfigError, match='min_gain'):
         PassRegistrationConfig(min_gain=0.9)
+
+
+def test_the_run_says_what_its_pose_start_did(tmp_path: Path) -> None:
+    """`fruitnerfpp run` / `train` print these lines: a user sees that the return pass was moved, and by how much."""
+    assert pose_start_lines(tmp_path) == []  # a run without the steps (or an older run) says nothing
+    (tmp_path / POSE_ALIGNMENT_JSON).write_text(json.dumps(
+        {'applied': False, 'reason': 'the recorded poses agree with the images (0.07 px)'}))
+    (tmp_path / PASS_REGISTRATION_JSON).write_text(json.dumps(
+        {'applied': True, 'offset_m': [0.0932, -0.0116, 0.0], 'yaw_deg': -0.5, 'gain': 2.299}))
+    assert pose_start_lines(tmp_path) == [
+        'poses kept by the alignment: the recorded poses agree with the images (0.07 px)',
+        'return pass moved onto the first: +9.3 cm along the row, -1.2 cm across, +0.0 cm up, -0.5 deg '
+        "(its fruit meet the first pass's 2.30x more)"]
+    (tmp_path / PASS_REGISTRATION_JSON).write_text(json.dumps({'applied': False, 'reason': 'one pass only'}))
+    assert pose_start_lines(tmp_path)[1] == 'return pass kept: one pass only'
