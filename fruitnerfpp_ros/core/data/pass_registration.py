@@ -174,11 +174,11 @@ def register_passes(dataset: SceneDataset, box: np.ndarray, fruit_diameter_m: fl
         device: where the vote and the search run.
     """
     device = torch.device(device)
-    identity = np.eye(4)
     views = np.asarray(dataset.train_indices, dtype=np.int64)
 
-    def kept(reason: str, moved: np.ndarray = np.zeros(0, np.int64), **figures) -> PassRegistration:
-        return PassRegistration(moved, identity, {'applied': False, 'reason': reason, **figures})
+    def kept(reason: str, moved: np.ndarray | None = None, **figures) -> PassRegistration:
+        moved = np.zeros(0, np.int64) if moved is None else moved
+        return PassRegistration(moved, np.eye(4), {'applied': False, 'reason': reason, **figures})
 
     passes = split_passes(dataset.T_world_camera.double().numpy(), views, config)
     if isinstance(passes, str):

@@ -283,10 +283,10 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     # the geometry stage's pose corrections start at the alignment's and registration's (a resume: its checkpoint's)
     model = FruitNeRFModel(config, dataset, aabb, scale.fruit_diameter_m, dev,
                            None if start is None else start.correction)
-    if start is not None and start.alignment is not None:
-        atomic_write_text(run.root / POSE_ALIGNMENT_JSON, json.dumps(start.alignment.report, indent=1))
-    if start is not None and start.registration is not None:
-        atomic_write_text(run.root / PASS_REGISTRATION_JSON, json.dumps(start.registration.report, indent=1))
+    if start is not None:  # what the pose start did (a resume keeps the files of the run's first start)
+        for name, step in ((POSE_ALIGNMENT_JSON, start.alignment), (PASS_REGISTRATION_JSON, start.registration)):
+            if step is not None:
+                atomic_write_text(run.root / name, json.dumps(step.report, indent=1))
     if model.depth_check is not None:  # RGB-D: which views' depth agreed with their neighbours'
         atomic_write_text(run.root / 'depth_check.json', json.dumps(model.depth_check.to_json(), indent=1))
     generator = torch.Generator().manual_seed(config.seed)
