@@ -164,8 +164,8 @@ def recount_row(run: Path, copy: Path, variant: Variant, mask_noise: tuple[float
         fruits, record = done
         cloud = _cloud(seg / 'run', variant.export, copy / 'segments' / seg.name / 'cloud')
         count = _count(cloud, variant.cluster, _views(seg / 'run', seg / 'dataset', mask_noise))
-        fruits = segment_fruits(fruits.segment, count)
-        info = {k: v for k, v in record.items() if k not in ('segment', 'fruits')}
+        fruits = segment_fruits(fruits.segment, count, cloud)
+        info = {k: v for k, v in record.items() if k not in ('segment', 'fruits', 'support')}
         (copy / 'segments' / seg.name).mkdir(parents=True, exist_ok=True)
         write_segment_result(copy / 'segments' / seg.name, fruits, **info)
         print(f'{seg.name}: {len(fruits.ids)} fruits', flush=True)

@@ -86,10 +86,16 @@ class MergeConfig:
     """A segment's unpaired fruit within the match reach of both copies of a pair is a piece of that fruit (the
     segment split it) when the neighbour's copy is one fruit's size: at most this many times the segment's median
     fruit diameter. A larger copy may be two fruits the neighbour merged, and the fruit stays."""
+    support_radius_diameters: float = 0.5
+    """A fruit one segment counted in a neighbour's trusted stretch, which the neighbour did not count, is dropped
+    when the neighbour's fruit cloud has no point within this many fruit diameters (the segment's median) of it:
+    the neighbour's views saw the place and found no fruit surface there. 0 = keep every such fruit."""
 
     def __post_init__(self) -> None:
         _positive('merge', match_diameters=self.match_diameters, min_diameter_m=self.min_diameter_m,
                   max_lateral_m=self.max_lateral_m, piece_max_diameter_ratio=self.piece_max_diameter_ratio)
+        if not self.support_radius_diameters >= 0:
+            raise ConfigError(f'merge.support_radius_diameters must be >= 0, got {self.support_radius_diameters!r}')
 
 
 @dataclass(frozen=True)

@@ -26,18 +26,22 @@ from typing import TYPE_CHECKING, Any, Callable, NamedTuple, Protocol, Sequence
 import numpy as np
 
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
-from fruitnerfpp_ros.core.orchard.merge import SegmentFruits
+from fruitnerfpp_ros.core.orchard.merge import SegmentFruits, cloud_support
 from fruitnerfpp_ros.errors import FruitNerfError
 
 if TYPE_CHECKING:
     from fruitnerfpp_ros.core.clustering.count_result import CountResult
+    from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
 
 __all__ = ['SegmentJob', 'SegmentOutcome', 'JobFunction', 'train_segment', 'run_attempt', 'read_segment_result',
-           'segment_fruits', 'write_segment_result',
+           'segment_fruits', 'support_voxel_m', 'write_segment_result',
            'SegmentRunner', 'InProcessRunner', 'RayRunner', 'RESULT_NAME', 'ATTEMPTS_NAME']
 
 RESULT_NAME = 'result.json'
 ATTEMPTS_NAME = 'attempts.jsonl'
+#: a segment's support (where its fruit cloud has points, for the merge) is kept on voxels of this many fruit
+#: diameters: a fifth, so that "no support within half a diameter" is "no cloud point within 0.3-0.7 diameters"
+SUPPORT_VOXEL_DIAMETERS = 0.2
 
 
 class SegmentJob(NamedTuple):
@@ -96,6 +100,12 @@ def _attempts(segment_dir: Path) -> list[dict[str, Any]]:
         return []
 
 
+def _support_from_record(record: Any) -> np.ndarray | None:
+    """The support points of ``result.json``'s ``support`` (flat x, y, z, ...); None when the result has none
+    (written before it was kept)."""
+    return None if record is None else np.asarray(record, np.float64).reshape(-1, 3)
+
+
 def read_segment_result(segment_dir: str | Path) -> tuple[SegmentFruits, dict[str, Any]] | None:
     """(fruits, the whole record) of a finished segment, None when it has no readable result."""
     try:
@@ -104,7 +114,8 @@ def read_segment_result(segment_dir: str | Path) -> tuple[SegmentFruits, dict[st
         return SegmentFruits(int(data['segment']), np.array([f['center'] for f in fruits], np.float64).reshape(-1, 3),
                              np.array([f['diameter'] for f in fruits], np.float64),
                              np.array([f['n_points'] for f in fruits], np.int64),
-                             np.array([f['id'] for f in fruits], np.int64)), data
+                             np.array([f['id'] for f in fruits], np.int64),
+                             _support_from_record(data.get('support'))), data
     except (OSError, ValueError, KeyError, TypeError):
         return None
 
@@ -166,26 +177,39 @@ def train_segment(job: SegmentJob, stop_event: Any = None) -> SegmentFruits:
                           stop_event=stop_event)
     if result.stopped:
         raise FruitNerfError(f'segment {job.index}: the pipeline stopped before the count')
-    fruits = segment_fruits(job.index, result.count)
+    fruits = segment_fruits(job.index, result.count, result.cloud)
     write_segment_result(segment_dir, fruits, seconds=round(time.perf_counter() - started, 2), worker=_worker(),
                          peak_rss_mib=round(_peak_rss_mib(), 1))
     return fruits
 
 
-def segment_fruits(index: int, count: CountResult) -> SegmentFruits:
-    """Segment ``index``'s fruits from its pipeline count."""
+def support_voxel_m(cloud: FruitPointCloud) -> float:
+    """The voxel of a segment's support (:func:`~.merge.cloud_support`): :data:`SUPPORT_VOXEL_DIAMETERS` of the
+    scene's fruit diameter, at least the cloud's own spacing (a cloud of unknown scale: 1 cm)."""
+    diameter = cloud.fruit_diameter_m or 0.05
+    return max(SUPPORT_VOXEL_DIAMETERS * diameter, cloud.spacing_m or 0.0, 1e-3)
+
+
+def segment_fruits(index: int, count: CountResult, cloud: FruitPointCloud | None = None) -> SegmentFruits:
+    """Segment ``index``'s fruits from its pipeline count (and, given its fruit cloud, where that cloud has
+    points: ``support``)."""
+    support = None if cloud is None else cloud_support(cloud.xyz, support_voxel_m(cloud))
     return SegmentFruits(index, count.centers(), np.array([f.diameter_m for f in count.fruits], np.float64),
                          np.array([f.n_points for f in count.fruits], np.int64),
-                         np.array([f.id for f in count.fruits], np.int64))
+                         np.array([f.id for f in count.fruits], np.int64), support)
 
 
 def write_segment_result(segment_dir: str | Path, fruits: SegmentFruits, **info: Any) -> None:
     """Write ``SEGMENT_DIR/result.json`` (what :func:`read_segment_result` reads): ``info`` (seconds, worker,
-    peak_rss_mib) and the fruits."""
+    peak_rss_mib), the fruits and, when known, their support (voxel indices, a few thousand)."""
     record = {'segment': int(fruits.segment), **info,
               'fruits': [{'id': int(i), 'center': [float(v) for v in c], 'diameter': float(d), 'n_points': int(n)}
                          for i, c, d, n in zip(fruits.ids, fruits.centers, fruits.diameters, fruits.n_points)]}
-    atomic_write_text(Path(segment_dir) / RESULT_NAME, json.dumps(record, indent=1))
+    text = json.dumps(record, indent=1)
+    if fruits.support is not None:  # thousands of coordinates (0.1 mm) on one line, not one per line
+        flat = np.round(np.asarray(fruits.support, np.float64), 4).reshape(-1).tolist()
+        text = f'{text[:-2]},\n "support": {json.dumps(flat)}\n}}'
+    atomic_write_text(Path(segment_dir) / RESULT_NAME, text)
 
 
 JobFunction = Callable[[SegmentJob], SegmentFruits]

@@ -4,9 +4,11 @@ Each segment's fruits count within its trusted stretch (:class:`~.segments.Segme
 stretches overlap around their cut; a fruit there (or within the match reach of the overlap's ends) is usually
 counted by both. Such pairs are matched one-to-one by 3D distance (Hungarian; at most ``match_diameters`` fruit
 diameters apart) and kept once: the copy of the segment whose own stretch holds the pair (it saw the fruit from
-more central views). A fruit only one of them counted stays; a piece of a paired fruit (a segment that split
-the fruit in two) does not. Instance embeddings are not used for matching: each segment trains its own instance
-field, so the embeddings of two segments live in unrelated spaces.
+more central views). A fruit only one of them counted stays, unless the other segment's fruit cloud holds no
+point near it (``SegmentFruits.support``): that segment's views saw the place and its field put no fruit surface
+there, so the fruit is one segment's ghost. A piece of a paired fruit (a segment that split the fruit in two) does
+not stay. Instance embeddings are not used for matching: each segment trains its own instance field, so the
+embeddings of two segments live in unrelated spaces.
 """
 
 from __future__ import annotations
@@ -15,12 +17,13 @@ from typing import NamedTuple, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.orchard.config import MergeConfig
 from fruitnerfpp_ros.core.orchard.row_frame import RowFrame
 from fruitnerfpp_ros.core.orchard.segments import Segment
 
-__all__ = ['SegmentFruits', 'RowFruits', 'merge_segments']
+__all__ = ['SegmentFruits', 'RowFruits', 'merge_segments', 'cloud_support']
 
 
 class SegmentFruits(NamedTuple):
@@ -30,6 +33,8 @@ class SegmentFruits(NamedTuple):
         segment: the segment's index.
         centers: [K, 3] metres; diameters: [K] metres; n_points: [K] cloud points of each fruit.
         ids: [K] the fruit ids of the segment's own count (counts.json, its cloud's instance ids).
+        support: [V, 3] where the segment's fruit cloud has points (:func:`cloud_support`), or None: not known
+            (a result written before it was kept, a test's stub); then no fruit is judged by it.
     """
 
     segment: int
@@ -37,10 +42,18 @@ class SegmentFruits(NamedTuple):
     diameters: np.ndarray
     n_points: np.ndarray
     ids: np.ndarray
+    support: np.ndarray | None = None
 
     @classmethod
     def empty(cls, segment: int) -> 'SegmentFruits':
         return cls(segment, np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+def cloud_support(xyz: np.ndarray, voxel_m: float) -> np.ndarray:
+    """[V, 3] the centres of the ``voxel_m`` voxels that hold points of a fruit cloud [N, 3]: the cloud thinned to
+    what the merge asks of it (is there fruit surface near a place?), a few thousand points per segment."""
+    keys = np.unique(np.floor(np.asarray(xyz, np.float64).reshape(-1, 3) / voxel_m).astype(np.int64), axis=0)
+    return (keys + 0.5) * voxel_m
 
 
 class RowFruits(NamedTuple):
@@ -52,6 +65,8 @@ class RowFruits(NamedTuple):
         matched: [M] bool: two neighbouring segments counted it (the pair became this one fruit).
         dropped_off_row: fruits left out for lying further than ``max_lateral_m`` from the centre line.
         dropped_untrusted: fruits left out for lying outside their segment's trusted stretch.
+        dropped_unsupported: fruits one segment counted in the overlap with a neighbour whose fruit cloud has no
+            point near them.
     """
 
     centers: np.ndarray
@@ -63,6 +78,7 @@ class RowFruits(NamedTuple):
     matched: np.ndarray
     dropped_off_row: int = 0
     dropped_untrusted: int = 0
+    dropped_unsupported: int = 0
 
     def __len__(self) -> int:
         return len(self.centers)
@@ -115,6 +131,34 @@ def _pieces(own: SegmentFruits, window: np.ndarray, paired: np.ndarray, other: S
     return loose[piece.any(axis=1)]
 
 
+def _unsupported(done: dict[int, SegmentFruits], by_index: dict[int, Segment], kept: dict[int, np.ndarray],
+                 along: dict[int, np.ndarray], matched: dict[int, np.ndarray], config: MergeConfig
+                 ) -> dict[int, np.ndarray]:
+    """Per segment, a mask of its kept fruits that no other segment counted (unpaired) although they lie in
+    another segment's trusted stretch whose fruit cloud (``support``) has no point within
+    ``support_radius_diameters`` of the segment's median fruit diameters of them."""
+    drop = {k: np.zeros(len(done[k].centers), bool) for k in done}
+    if not config.support_radius_diameters:
+        return drop
+    trees = {j: cKDTree(c.support) for j, c in done.items() if c.support is not None and len(c.support)}
+    for k, own in done.items():
+        loose = kept[k] & ~matched[k]
+        if not loose.any():
+            continue
+        radius = config.support_radius_diameters * float(np.median(own.diameters))
+        for j, other in done.items():
+            if j == k or other.support is None:
+                continue
+            trust = by_index[j].trust
+            judged = loose & (along[k] >= trust[0]) & (along[k] <= trust[1])
+            if not judged.any():
+                continue
+            near = (trees[j].query_ball_point(own.centers[judged], radius, return_length=True) > 0
+                    if j in trees else np.zeros(int(judged.sum()), bool))
+            drop[k][np.flatnonzero(judged)[~near]] = True
+    return drop
+
+
 def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequence[SegmentFruits | None],
                    config: MergeConfig = MergeConfig()) -> RowFruits:
     """Join the segments' counts (None: the segment has no count, e.g. it failed) into the row's fruits."""
@@ -159,6 +203,9 @@ def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequenc
                 kept[k][i], matched[k_next][j] = False, True
         kept[k][pieces_a] = False
         kept[k_next][pieces_b] = False
+    unsupported = _unsupported(done, by_index, kept, along, matched, config)
+    for k in order:
+        kept[k] &= ~unsupported[k]
     parts = [(k, np.flatnonzero(kept[k])) for k in order]
     centers = np.concatenate([done[k].centers[i] for k, i in parts]) if parts else np.zeros((0, 3))
     s_all = np.concatenate([along[k][i] for k, i in parts]) if parts else np.zeros(0)
@@ -172,4 +219,5 @@ def merge_segments(frame: RowFrame, segments: Sequence[Segment], counts: Sequenc
     segs = np.concatenate([np.full(len(i), k) for k, i in parts])[rank] if parts else np.zeros(0, np.int64)
     return RowFruits(centers.reshape(-1, 3)[rank], gather(None, 'diameters'), gather(None, 'n_points'),
                      s_all[rank], segs.astype(np.int64), gather(None, 'ids').astype(np.int64),
-                     gather(matched).astype(bool), off_row, untrusted)
+                     gather(matched).astype(bool), off_row, untrusted,
+                     sum(int(u.sum()) for u in unsupported.values()))

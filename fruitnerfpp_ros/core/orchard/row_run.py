@@ -224,7 +224,8 @@ def finish_row(plan: RowPlan, outcomes: Sequence[SegmentOutcome], out_dir: Path,
     row_id = config.geo.row_id
     row = {'id': row_id, **plan.frame.to_json(), 'fruit_extent_m': [round(v, 3) for v in plan.extent],
            'trees_source': trees.source, 'duplicates_removed': int(fruits.matched.sum()),
-           'dropped_off_row': fruits.dropped_off_row, 'dropped_untrusted': fruits.dropped_untrusted}
+           'dropped_off_row': fruits.dropped_off_row, 'dropped_untrusted': fruits.dropped_untrusted,
+           'dropped_unsupported': fruits.dropped_unsupported}
     report = row_report(run_id=run_id or out_dir.name, frame_id=frame_id, stamp_ns=stamp_ns, fruits=fruits,
                         tree_ids=tree_ids, trees=tree_counts, fruit_geodetic=fruit_geo, tree_geodetic=tree_geo,
                         row=row, segments=_segment_records(plan, outcomes, fruits),

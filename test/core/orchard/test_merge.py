@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from fruitnerfpp_ros.core.orchard.config import MergeConfig
-from fruitnerfpp_ros.core.orchard.merge import SegmentFruits, merge_segments
+from fruitnerfpp_ros.core.orchard.merge import SegmentFruits, cloud_support, merge_segments
 from fruitnerfpp_ros.core.orchard.row_frame import RowFrame
 from fruitnerfpp_ros.core.orchard.segments import Segment
 
@@ -106,3 +106,46 @@ def test_a_neighbours_copy_larger_than_a_fruit_leaves_both_fruits() -> None:
     b = b._replace(diameters=np.array([0.105, 0.07]))
     assert len(merge_segments(FRAME, SEGMENTS, [a, b])) == 4
     assert len(merge_segments(FRAME, SEGMENTS, [a, b._replace(diameters=np.array([0.07, 0.07]))])) == 3
+
+
+def _with_support(fruits: SegmentFruits, where: list[list[float]]) -> SegmentFruits:
+    """The segment's fruit cloud: a shell of points 3 cm around each of ``where``, thinned as the jobs thin it."""
+    sphere = np.random.default_rng(0).normal(size=(200, 3))
+    shell = 0.03 * sphere / np.linalg.norm(sphere, axis=1, keepdims=True)
+    points = np.concatenate([np.asarray(c) + shell for c in where]) if where else np.zeros((0, 3))
+    return fruits._replace(support=cloud_support(points, 0.014))
+
+
+def test_a_fruit_only_one_segment_counted_where_the_neighbours_cloud_is_empty_is_dropped() -> None:
+    """The overlap of the trusted stretches is 0.7..1.3. a counts a fruit at 1.2 and b does not: b's views saw the
+    place; where b's fruit cloud has points there (a fruit b's clustering lost), a's fruit stays; where b's cloud is
+    empty there, a's fruit is a ghost of a's field, and is dropped. Fruits outside the overlap are not judged."""
+    a = _fruits(0, [[0.4, 0.0, 1.0], [1.2, 0.0, 1.0], [1.0, 0.1, 1.0]])
+    b = _fruits(1, [[1.002, 0.1, 1.0], [1.8, 0.0, 1.0]])
+    seen = merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [[1.0, 0.1, 1.0], [1.8, 0.0, 1.0], [1.2, 0.0, 1.0]])])
+    assert np.allclose(seen.along, [0.4, 1.0, 1.2, 1.8], atol=0.003) and seen.dropped_unsupported == 0
+    empty = merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [[1.0, 0.1, 1.0], [1.8, 0.0, 1.0]])])
+    assert np.allclose(empty.along, [0.4, 1.0, 1.8], atol=0.003) and empty.dropped_unsupported == 1
+    assert empty.matched.tolist() == [False, True, False]                     # the pair is not judged
+    unknown = merge_segments(FRAME, SEGMENTS, [a, b])                        # no support (an old result): kept
+    assert len(unknown) == 4 and unknown.dropped_unsupported == 0
+    off = merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [])], MergeConfig(support_radius_diameters=0))
+    assert len(off) == 4
+
+
+def test_the_support_is_judged_both_ways_and_at_half_a_diameter() -> None:
+    """b's lone fruit at 0.8 lies in a's trusted stretch: a's cloud is judged too. A cloud point 2.5 cm off (0.36 of
+    the 7 cm fruit) supports it; 6 cm off (0.86) does not."""
+    b = _fruits(1, [[0.8, 0.0, 1.0], [1.6, 0.0, 1.0]])
+    near = merge_segments(FRAME, SEGMENTS, [_with_support(_fruits(0, [[0.3, 0.0, 1.0]]), [[0.8, 0.0, 1.055]]), b])
+    assert np.allclose(near.along, [0.3, 0.8, 1.6])
+    far = merge_segments(FRAME, SEGMENTS, [_with_support(_fruits(0, [[0.3, 0.0, 1.0]]), [[0.8, 0.0, 1.09]]), b])
+    assert np.allclose(far.along, [0.3, 1.6]) and far.dropped_unsupported == 1
+
+
+def test_cloud_support_keeps_one_point_per_occupied_voxel() -> None:
+    points = np.array([[0.001, 0.001, 0.001], [0.009, 0.002, 0.003], [0.011, 0.0, 0.0], [-0.001, 0.0, 0.0]])
+    support = cloud_support(points, 0.01)
+    expected = [(-0.005, 0.005, 0.005), (0.005, 0.005, 0.005), (0.015, 0.005, 0.005)]
+    assert sorted(map(tuple, np.round(support, 4))) == expected
+    assert cloud_support(np.zeros((0, 3)), 0.01).shape == (0, 3)
