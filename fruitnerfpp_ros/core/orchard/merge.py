@@ -136,13 +136,14 @@ def _unsupported(done: dict[int, SegmentFruits], by_index: dict[int, Segment], k
                  ) -> dict[int, np.ndarray]:
     """Per segment, a mask of its kept fruits that no other segment counted (unpaired) although they lie in
     another segment's trusted stretch whose fruit cloud (``support``) has no point within
-    ``support_radius_diameters`` of the segment's median fruit diameters of them."""
+    ``support_radius_diameters`` of the segment's median fruit diameters of them. Fruits found from the views'
+    masks where the segment's own cloud had no points (``n_points`` 0) are not judged by a cloud."""
     drop = {k: np.zeros(len(done[k].centers), bool) for k in done}
     if not config.support_radius_diameters:
         return drop
     trees = {j: cKDTree(c.support) for j, c in done.items() if c.support is not None and len(c.support)}
     for k, own in done.items():
-        loose = kept[k] & ~matched[k]
+        loose = kept[k] & ~matched[k] & (own.n_points > 0)
         if not loose.any():
             continue
         radius = config.support_radius_diameters * float(np.median(own.diameters))

@@ -127,6 +127,8 @@ def test_a_fruit_only_one_segment_counted_where_the_neighbours_cloud_is_empty_is
     empty = merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [[1.0, 0.1, 1.0], [1.8, 0.0, 1.0]])])
     assert np.allclose(empty.along, [0.4, 1.0, 1.8], atol=0.003) and empty.dropped_unsupported == 1
     assert empty.matched.tolist() == [False, True, False]                     # the pair is not judged
+    from_masks = a._replace(n_points=np.array([50, 0, 50]))                 # found from a's masks, not its cloud
+    assert len(merge_segments(FRAME, SEGMENTS, [from_masks, _with_support(b, [[1.0, 0.1, 1.0]])])) == 4
     unknown = merge_segments(FRAME, SEGMENTS, [a, b])                        # no support (an old result): kept
     assert len(unknown) == 4 and unknown.dropped_unsupported == 0
     off = merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [])], MergeConfig(support_radius_diameters=0))
