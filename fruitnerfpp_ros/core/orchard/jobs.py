@@ -201,7 +201,7 @@ def segment_fruits(index: int, count: CountResult, cloud: FruitPointCloud | None
 
 def write_segment_result(segment_dir: str | Path, fruits: SegmentFruits, **info: Any) -> None:
     """Write ``SEGMENT_DIR/result.json`` (what :func:`read_segment_result` reads): ``info`` (seconds, worker,
-    peak_rss_mib), the fruits and, when known, their support (voxel indices, a few thousand)."""
+    peak_rss_mib), the fruits and, when known, their support (a few thousand points, 0.1 mm)."""
     record = {'segment': int(fruits.segment), **info,
               'fruits': [{'id': int(i), 'center': [float(v) for v in c], 'diameter': float(d), 'n_points': int(n)}
                          for i, c, d, n in zip(fruits.ids, fruits.centers, fruits.diameters, fruits.n_points)]}

@@ -137,7 +137,8 @@ def _unsupported(done: dict[int, SegmentFruits], by_index: dict[int, Segment], k
     """Per segment, a mask of its kept fruits that no other segment counted (unpaired) although they lie in
     another segment's trusted stretch whose fruit cloud (``support``) has no point within
     ``support_radius_diameters`` of the segment's median fruit diameters of them. Fruits found from the views'
-    masks where the segment's own cloud had no points (``n_points`` 0) are not judged by a cloud."""
+    masks where the segment's own cloud had no points (``n_points`` 0) are not judged by a cloud, nor by an empty
+    cloud (a segment that found no fruit at all says more about itself than about the place)."""
     drop = {k: np.zeros(len(done[k].centers), bool) for k in done}
     if not config.support_radius_diameters:
         return drop
@@ -147,15 +148,12 @@ def _unsupported(done: dict[int, SegmentFruits], by_index: dict[int, Segment], k
         if not loose.any():
             continue
         radius = config.support_radius_diameters * float(np.median(own.diameters))
-        for j, other in done.items():
-            if j == k or other.support is None:
-                continue
+        for j, tree in trees.items():
             trust = by_index[j].trust
             judged = loose & (along[k] >= trust[0]) & (along[k] <= trust[1])
-            if not judged.any():
+            if j == k or not judged.any():
                 continue
-            near = (trees[j].query_ball_point(own.centers[judged], radius, return_length=True) > 0
-                    if j in trees else np.zeros(int(judged.sum()), bool))
+            near = tree.query_ball_point(own.centers[judged], radius, return_length=True) > 0
             drop[k][np.flatnonzero(judged)[~near]] = True
     return drop
 

@@ -131,8 +131,9 @@ def test_a_fruit_only_one_segment_counted_where_the_neighbours_cloud_is_empty_is
     assert len(merge_segments(FRAME, SEGMENTS, [from_masks, _with_support(b, [[1.0, 0.1, 1.0]])])) == 4
     unknown = merge_segments(FRAME, SEGMENTS, [a, b])                        # no support (an old result): kept
     assert len(unknown) == 4 and unknown.dropped_unsupported == 0
-    off = merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [])], MergeConfig(support_radius_diameters=0))
-    assert len(off) == 4
+    assert len(merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [])])) == 4    # b found nothing at all
+    off = MergeConfig(support_radius_diameters=0)
+    assert len(merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [[1.0, 0.1, 1.0]])], off)) == 4
 
 
 def test_the_support_is_judged_both_ways_and_at_half_a_diameter() -> None:
