@@ -86,7 +86,7 @@ class MergeConfig:
     """A segment's unpaired fruit within the match reach of both copies of a pair is a piece of that fruit (the
     segment split it) when the neighbour's copy is one fruit's size: at most this many times the segment's median
     fruit diameter. A larger copy may be two fruits the neighbour merged, and the fruit stays."""
-    support_radius_diameters: float = 0.5
+    support_radius_diameters: float = 0.35
     """A fruit one segment counted in a neighbour's trusted stretch, which the neighbour did not count, is dropped
     when the neighbour's fruit cloud has no point within this many fruit diameters (the segment's median) of it:
     the neighbour's views saw the place and found no fruit surface there. 0 = keep every such fruit."""

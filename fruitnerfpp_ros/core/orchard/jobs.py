@@ -40,7 +40,7 @@ __all__ = ['SegmentJob', 'SegmentOutcome', 'JobFunction', 'train_segment', 'run_
 RESULT_NAME = 'result.json'
 ATTEMPTS_NAME = 'attempts.jsonl'
 #: a segment's support (where its fruit cloud has points, for the merge) is kept on voxels of this many fruit
-#: diameters: a fifth, so that "no support within half a diameter" is "no cloud point within 0.3-0.7 diameters"
+#: diameters: a fifth, so that "no support within 0.35 diameters" is "no cloud point within 0.18-0.52 diameters"
 SUPPORT_VOXEL_DIAMETERS = 0.2
 
 

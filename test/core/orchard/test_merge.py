@@ -136,11 +136,11 @@ def test_a_fruit_only_one_segment_counted_where_the_neighbours_cloud_is_empty_is
     assert len(merge_segments(FRAME, SEGMENTS, [a, _with_support(b, [[1.0, 0.1, 1.0]])], off)) == 4
 
 
-def test_the_support_is_judged_both_ways_and_at_half_a_diameter() -> None:
-    """b's lone fruit at 0.8 lies in a's trusted stretch: a's cloud is judged too. A cloud point 2.5 cm off (0.36 of
+def test_the_support_is_judged_both_ways_and_within_a_third_of_a_diameter() -> None:
+    """b's lone fruit at 0.8 lies in a's trusted stretch: a's cloud is judged too. A cloud point 1.5 cm off (0.21 of
     the 7 cm fruit) supports it; 6 cm off (0.86) does not."""
     b = _fruits(1, [[0.8, 0.0, 1.0], [1.6, 0.0, 1.0]])
-    near = merge_segments(FRAME, SEGMENTS, [_with_support(_fruits(0, [[0.3, 0.0, 1.0]]), [[0.8, 0.0, 1.055]]), b])
+    near = merge_segments(FRAME, SEGMENTS, [_with_support(_fruits(0, [[0.3, 0.0, 1.0]]), [[0.8, 0.0, 1.045]]), b])
     assert np.allclose(near.along, [0.3, 0.8, 1.6])
     far = merge_segments(FRAME, SEGMENTS, [_with_support(_fruits(0, [[0.3, 0.0, 1.0]]), [[0.8, 0.0, 1.09]]), b])
     assert np.allclose(far.along, [0.3, 1.6]) and far.dropped_unsupported == 1
