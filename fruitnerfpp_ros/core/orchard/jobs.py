@@ -102,8 +102,11 @@ def _attempts(segment_dir: Path) -> list[dict[str, Any]]:
 
 def _support_from_record(record: Any) -> np.ndarray | None:
     """The support points of ``result.json``'s ``support`` (flat x, y, z, ...); None when the result has none
-    (written before it was kept)."""
-    return None if record is None else np.asarray(record, np.float64).reshape(-1, 3)
+    (written before it was kept) or an unreadable one: the fruits still count, nothing is judged by it."""
+    try:
+        return None if record is None else np.asarray(record, np.float64).reshape(-1, 3)
+    except (ValueError, TypeError):
+        return None
 
 
 def read_segment_result(segment_dir: str | Path) -> tuple[SegmentFruits, dict[str, Any]] | None:
@@ -208,7 +211,7 @@ def write_segment_result(segment_dir: str | Path, fruits: SegmentFruits, **info:
     text = json.dumps(record, indent=1)
     if fruits.support is not None:  # thousands of coordinates (0.1 mm) on one line, not one per line
         flat = np.round(np.asarray(fruits.support, np.float64), 4).reshape(-1).tolist()
-        text = f'{text[:-2]},\n "support": {json.dumps(flat)}\n}}'
+        text = text.removesuffix('\n}') + f',\n "support": {json.dumps(flat)}\n}}'
     atomic_write_text(Path(segment_dir) / RESULT_NAME, text)
 
 

@@ -143,18 +143,16 @@ def _unsupported(done: dict[int, SegmentFruits], by_index: dict[int, Segment], k
     if not config.support_radius_diameters:
         return drop
     trees = {j: cKDTree(c.support) for j, c in done.items() if c.support is not None and len(c.support)}
-    for k, own in done.items():
-        loose = kept[k] & ~matched[k] & (own.n_points > 0)
-        if not loose.any():
+    order = sorted(done)  # only neighbours' trusted stretches overlap
+    for k, j in [*zip(order, order[1:]), *zip(order[1:], order)]:
+        own = done[k]
+        trust = by_index[j].trust
+        judged = kept[k] & ~matched[k] & (own.n_points > 0) & (along[k] >= trust[0]) & (along[k] <= trust[1])
+        if j not in trees or not judged.any():
             continue
         radius = config.support_radius_diameters * float(np.median(own.diameters))
-        for j, tree in trees.items():
-            trust = by_index[j].trust
-            judged = loose & (along[k] >= trust[0]) & (along[k] <= trust[1])
-            if j == k or not judged.any():
-                continue
-            near = tree.query_ball_point(own.centers[judged], radius, return_length=True) > 0
-            drop[k][np.flatnonzero(judged)[~near]] = True
+        near = trees[j].query_ball_point(own.centers[judged], radius, return_length=True) > 0
+        drop[k][np.flatnonzero(judged)[~near]] = True
     return drop
 
 

@@ -54,3 +54,11 @@ def test_the_support_voxel_follows_the_fruit_and_never_undercuts_the_cloud() -> 
     assert support_voxel_m(_cloud(xyz, 0.04, 0.005)) == 0.2 * 0.04
     assert support_voxel_m(_cloud(xyz, 0.04, 0.012)) == 0.012                # the cloud is coarser than a fifth
     assert support_voxel_m(_cloud(xyz, None, None)) == 0.2 * 0.05            # unknown scale: a 5 cm fruit
+
+
+def test_an_unreadable_support_keeps_the_fruits(tmp_path: Path) -> None:
+    record = {'segment': 0, 'fruits': [{'id': 1, 'center': [0, 0, 1], 'diameter': 0.07, 'n_points': 30}],
+              'support': [0.1, 0.2]}                                       # not x, y, z triples
+    (tmp_path / RESULT_NAME).write_text(json.dumps(record))
+    fruits, _ = read_segment_result(tmp_path)
+    assert fruits.support is None and fruits.ids.tolist() == [1]
