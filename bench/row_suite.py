@@ -93,6 +93,8 @@ def run_row(row: Row, out: Path, preset: str, workers: int, config: Path | None,
         data = reuse / row.name / 'data'
     started = time.perf_counter()
     record: dict[str, Any] = {'row': row.name, 'covers': row.covers, 'synth': list(row.synth), 'error': ''}
+    if reuse is not None and not (reuse / row.name / 'run' / 'row.json').is_file():
+        return {**record, 'error': f'nothing to reuse: no {reuse / row.name / "run" / "row.json"}'}
     if not (data / 'transforms.json').is_file():
         done = subprocess.run([*_cli(), 'synth', *COMMON, *row.synth, '--out', str(data)], capture_output=True,
                               text=True)

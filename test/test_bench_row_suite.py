@@ -72,3 +72,13 @@ def test_a_reuse_copies_the_plan_and_the_results_only(tmp_path: Path) -> None:
     suite._copy_finished(old, new)
     copied = sorted(str(p.relative_to(new)) for p in new.rglob('*') if p.is_file())
     assert copied == ['row.json', 'segments/seg_000/result.json', 'segments/seg_001/result.json']
+
+
+def test_a_row_the_reused_suite_lacks_is_reported_not_trained(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    calls: list = []
+    monkeypatch.setattr(suite.subprocess, 'run', lambda *a, **k: calls.append(a))
+    monkeypatch.setattr(suite.subprocess, 'call', lambda *a, **k: calls.append(a))
+    (tmp_path / 'old' / 'other_row' / 'run').mkdir(parents=True)
+    record = suite.run_row(suite.ROWS[0], tmp_path / 'new', 'tiny', 1, None, tmp_path / 'old')
+    assert record['error'].startswith('nothing to reuse') and not calls      # no synth, no orchard run
+    assert suite.table([record], 't')[4].startswith(f'| {suite.ROWS[0].name} | failed: nothing to reuse')
