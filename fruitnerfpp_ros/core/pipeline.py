@@ -283,9 +283,11 @@ def count_with_views(cloud: FruitPointCloud, config: ClusterConfig, views: RunVi
     count = count_fruits(cloud, config, executor=executor, progress=progress)
     if views is None or not config.masks.enabled:
         return count
+    from fruitnerfpp_ros.core.clustering.counter import centre_positions
     from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
 
-    return count_with_masks(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks)
+    points = (np.asarray(cloud.xyz, np.float64), np.asarray(centre_positions(cloud, config), np.float64))
+    return count_with_masks(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks, points)
 
 
 def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *, cloud_path: Path,

@@ -66,6 +66,16 @@ class MaskFruitConfig:
     """... and project onto the same instance mask in at least this many training views ..."""
     join_max_split_views: int = 0
     """... and onto two different masks in at most this many."""
+    split_merges: bool = True
+    """Cut in two a counted fruit the masks show as two touching fruits (``mask_merges.py``; on the fields of 40
+    suite scenes and 14 rows: F1 up on 15 scenes and 7 rows, down on no scene and 1 row, docs/results/orchard_rows.md,
+    session 38) ..."""
+    split_min_views: int = 3
+    """... when its disc holds two or more masks in at least this many training views ..."""
+    split_view_share: float = 0.5
+    """... and in at least this share of the views in which it holds any ..."""
+    split_min_separation_diameters: float = 0.6
+    """... and the two halves' centres lie at least this many fruit diameters apart."""
     skip_mask_sources: tuple[str, ...] = ('fallback',)
     """Masks of these sources (the dataset's ``mask_source``; a joined one when any of its parts is listed) are not
     used, nothing is added or joined: the built-in colour segmenter merges fruit and marks leaves, and its
@@ -87,6 +97,9 @@ class MaskFruitConfig:
                   (self.min_separation_diameters >= 0, 'min_separation_diameters must be >= 0'),
                   (self.min_camera_distance_m >= 0, 'min_camera_distance_m must be >= 0'),
                   (self.join_within_diameters > 0, 'join_within_diameters must be > 0'),
+                  (self.split_min_views >= 1 and 0 <= self.split_view_share <= 1
+                   and self.split_min_separation_diameters >= 0,
+                   'split_min_views must be >= 1, split_view_share in [0, 1], split_min_separation_diameters >= 0'),
                   (self.join_min_shared_views >= 1 and self.join_max_split_views >= 0,
                    'join_min_shared_views must be >= 1 and join_max_split_views >= 0')]
         for ok, message in checks:

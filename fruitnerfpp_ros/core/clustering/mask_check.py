@@ -1,7 +1,8 @@
 """The masks step of the count: the clustering's count checked against the training views' instance masks.
 
-1. Fruit the masks agree on where the cloud has none are added (``mask_fruits.py``).
-2. Counted fruits the masks show as pieces of one fruit are joined (``mask_pieces.py``).
+1. A counted fruit the masks show as two touching fruits is cut in two (``mask_merges.py``; with the cloud's points).
+2. Fruit the masks agree on where the cloud has none are added (``mask_fruits.py``).
+3. Counted fruits the masks show as pieces of one fruit are joined (``mask_pieces.py``).
 
 Masks whose source ``skip_mask_sources`` lists (the dataset's ``mask_source``: the built-in colour segmenter's by
 default) are not used: that segmenter merges touching fruit and marks leaves, so its masks agree where no fruit
@@ -18,6 +19,7 @@ import numpy as np
 from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult
 from fruitnerfpp_ros.core.clustering.mask_fruits import add_mask_fruits
+from fruitnerfpp_ros.core.clustering.mask_merges import split_mask_merges
 from fruitnerfpp_ros.core.clustering.mask_pieces import join_mask_pieces
 from fruitnerfpp_ros.core.clustering.mask_views import MaskViews
 
@@ -34,10 +36,11 @@ def skipped_mask_source(mask_source: str | None, config: MaskFruitConfig) -> str
 
 
 def count_with_masks(count: CountResult, views: MaskViews, fruit_diameter_m: float, aabb: np.ndarray | None,
-                     config: MaskFruitConfig) -> CountResult:
-    """The clustering's ``count`` checked against the training views' masks: the fruit they agree on where the cloud
-    has none added, then the counted fruits they show as pieces of one joined. Unchanged when ``config`` is off or
-    the masks' source is skipped (``stats['mask_fruits']`` then says so)."""
+                     config: MaskFruitConfig, points: tuple[np.ndarray, np.ndarray] | None = None) -> CountResult:
+    """The clustering's ``count`` checked against the training views' masks: a fruit they show as two touching ones
+    cut in two (needs ``points``: the cloud's [N, 3] positions and the same moved to their fruits' centres), the
+    fruit they agree on where the cloud has none added, then the counted fruits they show as pieces of one joined.
+    Unchanged when ``config`` is off or the masks' source is skipped (``stats['mask_fruits']`` then says so)."""
     if not config.enabled:
         return count
     skipped = skipped_mask_source(views.mask_source, config)
@@ -46,6 +49,8 @@ def count_with_masks(count: CountResult, views: MaskViews, fruit_diameter_m: flo
                   skipped, views.mask_source)
         return dataclasses.replace(count, stats={**count.stats, 'mask_fruits': {
             'added': 0, 'skipped_mask_source': views.mask_source}})
+    if points is not None:
+        count = split_mask_merges(count, views, *points, fruit_diameter_m, config)
     count = add_mask_fruits(count, views, fruit_diameter_m, aabb, config)
     count = join_mask_pieces(count, views, fruit_diameter_m, config)
     added, joined = count.stats.get('mask_fruits', {}), count.stats.get('mask_pieces', {})
