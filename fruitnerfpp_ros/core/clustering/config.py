@@ -164,9 +164,9 @@ class ClusterConfig:
 
     fruit_share_keep: float | None = 0.5
     """... and ``min_fruit_points`` = this x the points a fruit shows (a fruit's cluster holds about twice that
-    number; smaller ones are pieces at a fruit's edge or a field's ghosts). 0.5 over 0.4 (docs/results/
-    orchard_rows.md, session 38): mean F1 up on the ``cpu`` + ``holdout`` + ``quick`` fields (23 scenes), their
-    ``tiny`` fields (17) and the 14 rows, level with the fallback masks; 0.6 loses plums. None: the spacing-scaled
+    number; smaller ones are pieces at a fruit's edge or a field's ghosts). 0.5 over 0.4 (session 38 in
+    docs/results/accuracy_suite.md): mean F1 up on the ``cpu`` + ``holdout`` + ``quick`` fields (23 scenes), their
+    ``tiny`` fields (17) and 14 rows, level with the fallback masks; 0.6 loses plums. None: the spacing-scaled
     value."""
 
     reference_fruit_diameter_m: float | None = 0.075

@@ -54,8 +54,10 @@ def count_with_masks(count: CountResult, views: MaskViews, fruit_diameter_m: flo
     count = add_mask_fruits(count, views, fruit_diameter_m, aabb, config)
     count = join_mask_pieces(count, views, fruit_diameter_m, config)
     added, joined = count.stats.get('mask_fruits', {}), count.stats.get('mask_pieces', {})
+    cut = count.stats.get('mask_merges', {})
     if added:  # add_mask_fruits ran (its stats are all there)
-        _LOG.info('masks: %d fruit added from %d unexplained masks of >= %d px (each seen in >= %d views; shuffled '
-                  'masks would give %.1f), %d pieces joined', added['added'], added['unexplained_masks'],
-                  added['min_mask_pixels'], added['min_views'], added['chance_fruits'], joined.get('joined', 0))
+        _LOG.info('masks: %d touching pair(s) counted as one cut in two, %d fruit added from %d unexplained masks '
+                  'of >= %d px (each seen in >= %d views; shuffled masks would give %.1f), %d pieces joined',
+                  cut.get('split', 0), added['added'], added['unexplained_masks'], added['min_mask_pixels'],
+                  added['min_views'], added['chance_fruits'], joined.get('joined', 0))
     return count
