@@ -55,8 +55,8 @@ def masks_owned(views: MaskViews, centers: np.ndarray, fruit_diameter_m: float,
             continue
         pixels = np.concatenate([np.asarray(h, np.int64) for h in hits])
         fruit = np.repeat(seen, sizes)
-        covered = np.zeros((len(ids), len(centers)))
-        np.add.at(covered, (pixel_mask[pixels], fruit), 1.0)
+        covered = np.bincount(pixel_mask[pixels] * len(centers) + fruit,
+                              minlength=len(ids) * len(centers)).reshape(len(ids), len(centers))
         share = covered / np.bincount(pixel_mask, minlength=len(ids))[:, None]
         owner = np.where(share.max(axis=1) >= config.explained_share, share.argmax(axis=1), -1)
         owned = np.bincount(owner[owner >= 0], minlength=len(centers))
