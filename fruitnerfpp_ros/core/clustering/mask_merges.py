@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
-from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit
+from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit, fruit_diameter
 from fruitnerfpp_ros.core.clustering.mask_views import MaskViews, pinhole_view
 
 __all__ = ['masks_owned', 'split_mask_merges']
@@ -106,9 +106,11 @@ def split_mask_merges(count: CountResult, views: MaskViews, xyz: np.ndarray, cen
         if np.linalg.norm(ca - cb) < config.split_min_separation_diameters * fruit_diameter_m:
             continue
         labels[b] = next_id
+        # sizes as the clustering measures them (counter.fruits_from_labels, centres from moved points)
         extent = [np.subtract(*np.percentile(xyz[m], [98.0, 2.0], axis=0)) for m in (a, b)]
-        fruits[k] = Fruit(fruit.id, ca, fruit_diameter_m, extent[0], len(a), 'cloud')
-        fruits.append(Fruit(next_id, cb, fruit_diameter_m, extent[1], len(b), 'cloud'))
+        size = [fruit_diameter(xyz[m].astype(np.float64), c, 50.0) for m, c in ((a, ca), (b, cb))]
+        fruits[k] = Fruit(fruit.id, ca, size[0], extent[0], len(a), 'cloud')
+        fruits.append(Fruit(next_id, cb, size[1], extent[1], len(b), 'cloud'))
         next_id += 1
         split += 1
     stats = {**count.stats, 'mask_merges': {'split': split, 'flagged': int(flagged.sum())}}

@@ -70,6 +70,8 @@ def test_two_touching_fruits_counted_as_one_are_counted_as_two(views: MaskViews)
     assert [(result.labels == k).sum() for k in range(1, 7)] == [f.n_points for f in sorted(
         result.fruits, key=lambda f: f.id)]
     assert {(result.labels == 1).sum(), (result.labels == 6).sum()} == {60}   # each half one fruit's points
+    halves = [f for f in result.fruits if f.id in (1, 6)]
+    assert all(0.8 * DIAMETER < f.diameter_m < 1.25 * DIAMETER for f in halves)  # each measured as one fruit
 
 
 def test_the_pipelines_masks_step_splits_when_given_the_points(views: MaskViews) -> None:
