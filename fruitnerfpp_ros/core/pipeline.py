@@ -286,7 +286,9 @@ def count_with_views(cloud: FruitPointCloud, config: ClusterConfig, views: RunVi
     from fruitnerfpp_ros.core.clustering.counter import centre_positions
     from fruitnerfpp_ros.core.clustering.mask_check import count_with_masks
 
-    points = (np.asarray(cloud.xyz, np.float64), np.asarray(centre_positions(cloud, config), np.float64))
+    points = None
+    if config.masks.split_merges:  # the cut needs the points and the same moved to their fruits' centres
+        points = (np.asarray(cloud.xyz, np.float64), np.asarray(centre_positions(cloud, config), np.float64))
     return count_with_masks(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks, points)
 
 

@@ -50,7 +50,7 @@ from fruitnerfpp_ros.core.clustering.mask_views import MaskViews, pinhole_view
 from fruitnerfpp_ros.core.tracking.camera import PinholeView, triangulate
 from fruitnerfpp_ros.core.tracking.detections import detect_blobs
 
-__all__ = ['MaskViews', 'MaskRays', 'mask_pixel_floor', 'unexplained_mask_rays', 'triangulate_mask_rays',
+__all__ = ['MaskViews', 'MaskRays', 'fruit_discs', 'mask_pixel_floor', 'unexplained_mask_rays', 'triangulate_mask_rays',
            'ChanceFloor', 'shuffled_rays', 'chance_min_views', 'add_mask_fruits']
 
 
@@ -78,17 +78,25 @@ class MaskRays:
         return len(self.view)
 
 
-def _discs(camera: PinholeView, centers: np.ndarray, radius_m: float, margin_px: float) -> np.ndarray:
-    """[H, W] uint8 image, 1 on the projected discs (radius ``radius_m`` there, plus ``margin_px``) of the fruits at
-    ``centers``."""
+def fruit_discs(camera: PinholeView, centers: np.ndarray, fruit_diameter_m: float,
+                config: MaskFruitConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The discs a counted fruit explains masks with in a view: ([K, 2] projected centres (pixels), [K] radii
+    (``disc_radius_factor`` times the fruit's projected radius plus ``disc_margin_px``), [K] in front of the
+    camera) of the fruits at ``centers`` [K, 3]."""
+    uv, depth = camera.project(centers)                  # NaN behind the camera
+    radius_m = 0.5 * fruit_diameter_m * config.disc_radius_factor
+    radius = radius_m * camera.fl_x / np.maximum(depth, 1e-9) + config.disc_margin_px
+    return uv, radius, depth > 1e-6
+
+
+def _discs(camera: PinholeView, centers: np.ndarray, fruit_diameter_m: float, config: MaskFruitConfig) -> np.ndarray:
+    """[H, W] uint8 image, 1 on the :func:`fruit_discs` of the fruits at ``centers``."""
     image = np.zeros((camera.height, camera.width), np.uint8)
     if not len(centers):
         return image
-    uv, depth = camera.project(centers)                  # NaN behind the camera: no disc
-    radius = radius_m * camera.fl_x / np.maximum(depth, 1e-9) + margin_px
+    uv, radius, front = fruit_discs(camera, centers, fruit_diameter_m, config)
     u, v = uv.T
-    near = (depth > 1e-6) & (u + radius >= 0) & (u - radius < camera.width) & (v + radius >= 0) & \
-        (v - radius < camera.height)
+    near = front & (u + radius >= 0) & (u - radius < camera.width) & (v + radius >= 0) & (v - radius < camera.height)
     for x, y, r in zip(u[near], v[near], radius[near]):   # one filled circle per fruit in view (sub-pixel, 2 bits)
         cv2.circle(image, (int(round(x * 4)), int(round(y * 4))), max(1, int(round(r * 4))), 1, -1, shift=2)
     return image
@@ -114,14 +122,13 @@ def unexplained_mask_rays(views: MaskViews, centers: np.ndarray, fruit_diameter_
     parts: list[tuple[np.ndarray, ...]] = [(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0),
                                             np.zeros(0, np.int64))]
     areas = [np.zeros(0)]
-    radius_m = 0.5 * fruit_diameter_m * config.disc_radius_factor
     for view in np.asarray(views.views, np.int64):
         blobs = detect_blobs(np.asarray(views.instance_masks[view]), source=f'view {view} instance mask')
         areas.append(blobs.areas_px)
         if not len(blobs):
             continue
         camera = pinhole_view(views, view)
-        discs = _discs(camera, centers, radius_m, config.disc_margin_px)
+        discs = _discs(camera, centers, fruit_diameter_m, config)
         covered = np.bincount(blobs.labels.ravel(), weights=discs.ravel(), minlength=len(blobs) + 1)[1:]
         keep = (blobs.areas_px >= config.smallest_mask_pixels) & (covered < config.explained_share * blobs.areas_px)
         if not keep.any():

@@ -1,8 +1,8 @@
 """A counted fruit the training views' masks show as two touching fruits: split in two.
 
 Two touching fruits whose surfaces the field joined are one cluster, centred between them. The masks tell them
-apart: in the views that show them side by side, the one counted fruit's disc (its centre projected, ``disc_*``
-radius as ``mask_fruits.py`` draws it) covers most of *two* instance masks, which no other counted fruit covers. A
+apart: in the views that show them side by side, the one counted fruit's disc (``mask_fruits.fruit_discs``, the
+disc a counted fruit explains masks with) covers most of *two* instance masks, which no other counted fruit covers. A
 fruit counted right covers two masks only where a neighbour's mask reaches into its disc and that neighbour was not
 counted.
 
@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 
 from fruitnerfpp_ros.core.clustering.config import MaskFruitConfig
 from fruitnerfpp_ros.core.clustering.count_result import CountResult, Fruit, fruit_diameter
+from fruitnerfpp_ros.core.clustering.mask_fruits import fruit_discs
 from fruitnerfpp_ros.core.clustering.mask_views import MaskViews, pinhole_view
 
 __all__ = ['masks_owned', 'split_mask_merges']
@@ -43,13 +44,11 @@ def masks_owned(views: MaskViews, centers: np.ndarray, fruit_diameter_m: float,
         if not len(rows):
             continue
         ids, pixel_mask = np.unique(mask[rows, cols], return_inverse=True)
-        camera = pinhole_view(views, view)
-        uv, depth = camera.project(centers)
-        seen = np.flatnonzero(depth > 0)
+        uv, radius, front = fruit_discs(pinhole_view(views, view), centers, fruit_diameter_m, config)
+        seen = np.flatnonzero(front)
         if not len(seen):
             continue
-        radius = camera.fl_x * 0.5 * fruit_diameter_m * config.disc_radius_factor / depth[seen] + config.disc_margin_px
-        hits = cKDTree(np.c_[cols, rows]).query_ball_point(uv[seen], radius)
+        hits = cKDTree(np.c_[cols, rows]).query_ball_point(uv[seen], radius[seen])
         sizes = np.array([len(h) for h in hits], np.int64)
         if not sizes.sum():
             continue
