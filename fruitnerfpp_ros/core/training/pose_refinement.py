@@ -1,11 +1,13 @@
 """Per-view camera pose corrections learned with the fields (robot odometry is not exact).
 
 Each training view gets a 6-vector: a rotation (axis times angle, radians, in the camera's own frame) and a
-translation (metres, in the world frame). The corrections start at zero, train with the geometry (stages 1 and 2)
-through the photometric loss, and stay fixed in stage 3. The mean translation over the trained views is removed
-(the gauge: moving every camera by the same offset would move the whole reconstruction away from the world frame
-the ground truth and the outputs live in). Held-out views keep their recorded pose. At the end of stage 2 the
-run directory gets ``refined_poses.json`` (:func:`write_refined_poses`).
+translation (metres, in the world frame). The corrections start at zero or where the pose start put them (the
+alignment's, the pass registration's: core/training/pose_start.py), train with the geometry (stages 1 and 2)
+through the photometric loss, and stay fixed in stage 3. The start is applied as given; of what training adds, the
+mean translation over the trained views is removed (the gauge: moving every camera by the same offset would move
+the whole reconstruction away from the world frame the ground truth and the outputs live in). Held-out views keep
+their recorded pose. At the end of stage 2 the run directory gets ``refined_poses.json``
+(:func:`write_refined_poses`).
 """
 
 from __future__ import annotations
@@ -42,20 +44,28 @@ class PoseRefinement(nn.Module):
 
     Args:
         trained: [V] bool, the views whose poses are refined (the training views).
-        initial: optional [V, 6] starting corrections (the pose alignment's); zeros by default.
+        initial: optional [V, 6] starting corrections (the pose start's), applied as given; zeros by default.
     """
 
     def __init__(self, trained: torch.Tensor, initial: np.ndarray | torch.Tensor | None = None) -> None:
         super().__init__()
         self.register_buffer('trained', torch.as_tensor(trained, dtype=torch.bool).clone())
         start = torch.zeros(len(self.trained), 6) if initial is None else torch.as_tensor(initial, dtype=torch.float32)
+        self.register_buffer('start', start.clone())
         self.correction = nn.Parameter(start.clone())
+
+    def _load_from_state_dict(self, state_dict: dict, prefix: str, *args, **kwargs) -> None:
+        # a checkpoint from before the start was kept apart (session 39) put every correction under the gauge
+        if prefix + 'start' not in state_dict and prefix + 'correction' in state_dict:
+            state_dict[prefix + 'start'] = torch.zeros_like(state_dict[prefix + 'correction'])
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def forward(self, T_world_camera: torch.Tensor) -> torch.Tensor:
         """The corrected poses [V, 4, 4] of the recorded ones [V, 4, 4]."""
         mask = self.trained[:, None].to(T_world_camera.dtype)
         correction = self.correction.to(T_world_camera.dtype) * mask
-        shift = correction[:, 3:] - mask * correction[:, 3:].sum(0) / mask.sum().clamp_min(1.0)
+        learned = correction[:, 3:] - self.start[:, 3:].to(T_world_camera.dtype) * mask
+        shift = correction[:, 3:] - mask * learned.sum(0) / mask.sum().clamp_min(1.0)
         out = T_world_camera.clone()
         out[:, :3, :3] = T_world_camera[:, :3, :3] @ rotation_from_axis_angle(correction[:, :3])
         out[:, :3, 3] = T_world_camera[:, :3, 3] + shift

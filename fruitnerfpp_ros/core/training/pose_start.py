@@ -52,6 +52,7 @@ def aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment |
                          dataset.T_world_camera[views].double().numpy(), config.pose_alignment, valid)
     correction = np.zeros((dataset.num_views, 6))
     correction[views] = result.correction
+    correction[views, 3:] -= correction[views, 3:].mean(axis=0)  # its gauge: the views' mean position is kept
     log.info('pose alignment: %s', result.report)
     return PoseAlignment(correction, result.report)
 
@@ -78,7 +79,9 @@ def corrected_poses(dataset: SceneDataset, correction: np.ndarray) -> torch.Tens
 def with_transform(dataset: SceneDataset, correction: np.ndarray, views: np.ndarray, transform: np.ndarray
                    ) -> np.ndarray:
     """Corrections [V, 6] that put ``views`` where ``transform`` [4, 4] moves their poses corrected by
-    ``correction`` [V, 6], the other views where ``correction`` puts them (up to the gauge's common shift)."""
+    ``correction`` [V, 6], the other views where ``correction`` puts them: the registration's gauge is the first
+    pass, which stays where it was (halving the move between the passes would shift the whole reconstruction by
+    half the drift: 3-5 cm on apple_s15_drift, docs/results/pose_refinement.md, session 39)."""
     poses = corrected_poses(dataset, correction).double().numpy()
     recorded = dataset.T_world_camera.double().numpy()
     poses[views] = transform[None] @ poses[views]

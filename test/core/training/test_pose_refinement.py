@@ -54,6 +54,29 @@ def test_corrections_start_at_zero_keep_held_out_views_and_remove_the_mean_shift
     assert torch.equal(corrected[1, :3, :3], poses[1, :3, :3]) and torch.equal(corrected[2], poses[2])
 
 
+def test_the_start_is_applied_as_given_and_only_what_training_adds_is_under_the_gauge() -> None:
+    """The pass registration moves the return pass alone: its start must not be spread over both passes (which
+    shifted a drifted row's whole reconstruction by half the drift); a checkpoint without a start loads as before."""
+    poses = torch.eye(4).repeat(3, 1, 1)
+    start = np.zeros((3, 6))
+    start[1, 3:] = [0.07, 0.0, 0.0]                       # the return pass's view moved 7 cm, the first left
+    refinement = PoseRefinement(torch.tensor([True, True, False]), start)
+    np.testing.assert_allclose(refinement(poses)[:, :3, 3].detach().numpy(), [[0, 0, 0], [0.07, 0, 0], [0, 0, 0]],
+                               atol=1e-7)
+    with torch.no_grad():
+        refinement.correction[0, 3:] += torch.tensor([0.02, 0.0, 0.0])   # training adds 2 cm to one view
+    np.testing.assert_allclose(refinement(poses)[:2, :3, 3].detach().numpy(), [[0.01, 0, 0], [0.06, 0, 0]],
+                               atol=1e-7)
+    old = {'trained': refinement.trained, 'correction': refinement.correction.detach().clone()}
+    loaded = PoseRefinement(torch.tensor([True, True, False]))
+    loaded.load_state_dict(old)                           # a run from before the start was kept
+    np.testing.assert_allclose(loaded(poses)[:2, :3, 3].detach().numpy(), [[-0.025, 0, 0], [0.025, 0, 0]],
+                               atol=1e-7)
+    again = PoseRefinement(torch.tensor([True, True, False]))
+    again.load_state_dict(refinement.state_dict())
+    assert torch.equal(again(poses), refinement(poses))
+
+
 def _corrections(run: Path) -> torch.Tensor:
     return load_checkpoint(RunDir(run).latest_checkpoint)['poses']['correction']
 
