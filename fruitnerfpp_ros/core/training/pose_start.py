@@ -81,7 +81,7 @@ def with_transform(dataset: SceneDataset, correction: np.ndarray, views: np.ndar
     """Corrections [V, 6] that put ``views`` where ``transform`` [4, 4] moves their poses corrected by
     ``correction`` [V, 6], the other views where ``correction`` puts them: the registration's gauge is the first
     pass, which stays where it was (halving the move between the passes would shift the whole reconstruction by
-    half the drift: 3-5 cm on apple_s15_drift, docs/results/pose_refinement.md, session 39)."""
+    half the drift: 2-5 cm on apple_s15_drift, docs/results/pose_refinement.md, session 39)."""
     poses = corrected_poses(dataset, correction).double().numpy()
     recorded = dataset.T_world_camera.double().numpy()
     poses[views] = transform[None] @ poses[views]
