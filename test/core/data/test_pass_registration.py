@@ -69,7 +69,7 @@ def test_the_drifted_return_pass_is_put_back_on_the_fruit(row_datasets: dict[str
     assert before > 0.08 and after < 0.025, (before, after)
     assert report['gain'] > 1.5
     # the first pass is the gauge: it stays where it was recorded (its odometry had not drifted), so the fruit
-    # stays where it is in the world; spreading the move over both passes shifted it by half the drift (4.5 cm)
+    # stays where it is in the world; spreading the move over both passes shifted it by half the drift
     np.testing.assert_allclose(started[first].double().numpy(), drift.T_world_camera[first].double().numpy(),
                                atol=1e-5)
     assert np.linalg.norm(_seen_at(started, true_T, moved, fruit) - fruit) < 0.025
