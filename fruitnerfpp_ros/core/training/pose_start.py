@@ -2,10 +2,10 @@
 refined or held; and the scene box and scale measured on them.
 
 :func:`start_poses` runs it all: :func:`aligned_poses` (the feature-based alignment, core/data/pose_alignment.py,
-of the training views), :func:`refinement_after` (the photometric refinement, ``geometry.pose_lr``, off where the
-config asks for it only after a correction, ``pose_refine_when: aligned``, and the alignment kept the recorded
-poses), the scene measurement, then the registration of a row drive's return pass onto its first pass
-(core/data/pass_registration.py), after which the scene is measured again when it moved the pass.
+of the training views), the scene measurement, the registration of a row drive's return pass onto its first pass
+(core/data/pass_registration.py), after which the scene is measured again when it moved the pass, and last
+:func:`refinement_after` (the photometric refinement, ``geometry.pose_lr``, off where the config asks for it only
+after a correction, ``pose_refine_when: aligned``, and neither the alignment nor the registration moved a pose).
 :func:`corrected_poses` applies corrections as :class:`PoseRefinement` does.
 """
 
@@ -57,14 +57,22 @@ def aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment |
     return PoseAlignment(correction, result.report)
 
 
-def refinement_after(alignment: PoseAlignment | None, config: TrainConfig) -> TrainConfig:
-    """``config`` with ``geometry.pose_lr`` 0 where ``pose_refine_when`` is ``aligned`` and the alignment did not
-    correct the poses (the run's config.yaml then says what ran; a resume reads it)."""
+def refinement_after(alignment: PoseAlignment | None, registration: PassRegistration | None, config: TrainConfig
+                     ) -> TrainConfig:
+    """``config`` with ``geometry.pose_lr`` 0 where ``pose_refine_when`` is ``aligned`` and neither the alignment
+    nor the pass registration corrected the poses (the run's config.yaml then says what ran; a resume reads it).
+
+    A return pass the registration moved is refined like poses the alignment corrected: the registration is one
+    rigid move per pass, and a drift that grew along the drive leaves the rest to the refinement (apple_s15_drift
+    with ``tiny``: docs/results/pose_refinement.md, sessions 40-41)."""
     g = config.geometry
-    if g.pose_lr <= 0 or g.pose_refine_when != 'aligned' or (alignment is not None and alignment.report.get('applied')):
+    corrected = [name for name, outcome in (('alignment', alignment), ('registration', registration))
+                 if outcome is not None and outcome.report.get('applied')]
+    if g.pose_lr <= 0 or g.pose_refine_when != 'aligned' or corrected:
         return config
-    log.info('pose refinement off: %s', 'the pose alignment is off' if alignment is None
-             else f"the pose alignment kept the recorded poses ({alignment.report.get('reason', 'no correction')})")
+    log.info('pose refinement off: %s%s', 'the pose alignment is off' if alignment is None
+             else f"the pose alignment kept the recorded poses ({alignment.report.get('reason', 'no correction')})",
+             '' if registration is None else ' and no pass was moved')
     return dataclasses.replace(config, geometry=dataclasses.replace(g, pose_lr=0.0))
 
 
@@ -115,7 +123,6 @@ class PoseStart:
 def start_poses(dataset: SceneDataset, config: TrainConfig, device: torch.device) -> PoseStart:
     """Align the poses, measure the scene, register the passes (measuring again when they moved); see above."""
     alignment = aligned_poses(dataset, config)
-    config = refinement_after(alignment, config)
     correction = None if alignment is None else alignment.correction
     posed = dataset if correction is None else dataclasses.replace(
         dataset, T_world_camera=corrected_poses(dataset, correction))
@@ -130,6 +137,7 @@ def start_poses(dataset: SceneDataset, config: TrainConfig, device: torch.device
                                         else correction, registration.moved_views, registration.transform)
             posed = dataclasses.replace(dataset, T_world_camera=corrected_poses(dataset, correction))
             aabb, scale = measure_scene(posed, config, device)
+    config = refinement_after(alignment, registration, config)
     return PoseStart(config, correction, aabb, scale, alignment, registration)
 
 
