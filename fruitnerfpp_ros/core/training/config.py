@@ -183,8 +183,9 @@ class GeometryStageConfig(StageSchedule):
     """The pose corrections start training after this fraction of stage 1 (a first geometry to align to)."""
     pose_refine_when: str = 'always'
     """``always``: ``pose_lr`` refines the poses of every run. ``aligned``: only of a run whose pose alignment
-    (``pose_alignment``) found the recorded poses off the images and corrected them; poses that agree with the
-    images (or a run without the alignment) stay as recorded. A short schedule's refinement drifts exact poses:
+    (``pose_alignment``) found the recorded poses off the images and corrected them, or whose pass registration
+    (``pass_registration``) moved a row drive's return pass; poses that agree with the images (or a run without
+    either) stay as recorded. A short schedule's refinement drifts exact poses:
     ``tiny`` with it always on lost 0.08-0.09 F1 on two noise-free rows (docs/results/pose_refinement.md)."""
     coarse_to_fine_fraction: float = 0.0
     """The geometry grid's levels open coarse to fine over this fraction of stage 1 (BARF's schedule): poses align
