@@ -66,8 +66,7 @@ def refinement_after(alignment: PoseAlignment | None, registration: PassRegistra
     rigid move per pass, and a drift that grew along the drive leaves the rest to the refinement (apple_s15_drift
     with ``tiny``: docs/results/pose_refinement.md, sessions 40-41)."""
     g = config.geometry
-    corrected = [name for name, outcome in (('alignment', alignment), ('registration', registration))
-                 if outcome is not None and outcome.report.get('applied')]
+    corrected = any(outcome is not None and outcome.report.get('applied') for outcome in (alignment, registration))
     if g.pose_lr <= 0 or g.pose_refine_when != 'aligned' or corrected:
         return config
     log.info('pose refinement off: %s%s', 'the pose alignment is off' if alignment is None
