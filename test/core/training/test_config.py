@@ -27,10 +27,10 @@ def test_presets_scale_up() -> None:
     assert cpu.field == tiny.field and cpu.instance == tiny.instance
     rays = [c.geometry.iterations * c.geometry.batch_rays for c in (tiny, cpu, default, paper)]
     assert rays == sorted(rays) and len(set(rays)) == 4  # each preset trains its geometry on more rays
-    # every preset aligns the poses to the images; only `cpu` refines them also where the alignment kept them
+    # every preset aligns the poses to the images and refines them only where they were found off
     assert all(c.pose_alignment.enabled and c.geometry.pose_lr > 0 for c in (tiny, cpu, default, paper))
     refine_when = [c.geometry.pose_refine_when for c in (tiny, cpu, default, paper)]
-    assert refine_when == ['aligned', 'always', 'aligned', 'aligned']
+    assert refine_when == ['aligned', 'aligned', 'aligned', 'aligned']
     assert default.instance.groups == 4 and default.instance.group_size == 8 and default.instance.pixels_per_fruit == 32
     assert default.instance.temperature == 0.2 and default.field.embedding_dim == 32
     with pytest.raises(ConfigError, match='huge'):
