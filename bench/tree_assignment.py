@@ -40,7 +40,7 @@ def _scores(truth: np.ndarray, labels: np.ndarray, trees: int) -> tuple[float, f
     return float((labels == truth).mean()), float(error.max()), float((error > 0.10).mean())
 
 
-def _true_crowns(counted: np.ndarray, row: 'RowScene') -> np.ndarray:
+def _true_crowns(counted: np.ndarray, row: RowScene) -> np.ndarray:
     """[N] the tree whose true crown shell (0.9 of the ellipsoid r, r, 0.85 r) each centre lies nearest to."""
     semi = np.c_[row.crown_radii, row.crown_radii, 0.85 * row.crown_radii]
     radius = np.linalg.norm((counted[:, None] - row.crown_centers[None]) / semi[None], axis=2)

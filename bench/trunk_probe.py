@@ -67,8 +67,10 @@ def crowns_on_trunks(fruit: np.ndarray, trunks: np.ndarray, min_fruits: int = 12
                      ) -> np.ndarray:
     """[N] tree index of each fruit: the crown shell it lies nearest to, crowns fitted from their fruit with the
     centre's xy held on the trunk (height and radius fitted; trees with too few fruit take the median radius)."""
+    from fruitnerfpp_ros.core.orchard.trees import _nearest_trunks
+
     k = len(trunks)
-    _, candidates = _nearest(fruit[:, :2], trunks, min(3, k))
+    candidates = _nearest_trunks(fruit, trunks, 3)  # the crown rule's candidates: the three nearest trunks
     labels = candidates[:, 0]
     for _ in range(iterations):
         centres, radii = np.c_[trunks, np.zeros(k)], np.zeros(k)
@@ -93,13 +95,6 @@ def crowns_on_trunks(fruit: np.ndarray, trunks: np.ndarray, min_fruits: int = 12
             break
         labels = new
     return labels
-
-
-def _nearest(xy: np.ndarray, trunks: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """(distances, indices) [N, k] of the ``k`` trunks nearest to each point, nearest first."""
-    d = np.linalg.norm(xy[:, None] - trunks[None], axis=2)
-    order = np.argsort(d, axis=1)[:, :k]
-    return np.take_along_axis(d, order, axis=1), order
 
 
 def probe(row: Path) -> str:
