@@ -194,12 +194,12 @@ def vote_fruit_masks(dataset: SceneDataset, views: list[int], box: np.ndarray, r
         u, v, _, inside = _project(centres, T, K, dataset.width, dataset.height)
         if dataset.valid_masks is not None:
             inside &= dataset.valid_masks[view].to(device)[v, u]
-        seen += inside.to(torch.int32)
-        agrees = inside & dilated[v, u]
-        agree += agrees.to(torch.int32)
-        d = F.normalize(T[:3, 3] - centres, dim=1) * agrees[:, None].to(centres.dtype)
-        moments += torch.stack([d[:, 0] * d[:, 0], d[:, 1] * d[:, 1], d[:, 2] * d[:, 2], d[:, 0] * d[:, 1],
-                                d[:, 0] * d[:, 2], d[:, 1] * d[:, 2]], 1)
+        seen += inside
+        agrees = torch.nonzero(inside & dilated[v, u]).squeeze(1)       # the few voxels on the fruit mask
+        agree[agrees] += 1
+        d = F.normalize(T[:3, 3] - centres[agrees], dim=1)
+        moments.index_add_(0, agrees, torch.stack([d[:, 0] * d[:, 0], d[:, 1] * d[:, 1], d[:, 2] * d[:, 2],
+                                                   d[:, 0] * d[:, 1], d[:, 0] * d[:, 2], d[:, 1] * d[:, 2]], 1))
     return FruitVotes(centres, seen, agree, voxel, moments, shape)
 
 
