@@ -117,3 +117,15 @@ def test_a_step_that_would_put_a_point_behind_a_camera_is_refused() -> None:
     same_c, same_x = adjust(problem, correction, behind, weight, 10)
     np.testing.assert_array_equal(same_x, behind)
     np.testing.assert_array_equal(same_c, correction)
+
+
+def test_a_view_no_track_reaches_keeps_its_recorded_pose() -> None:
+    exact, _, X = _ring(views=6, points=30, seed=5)
+    rng = np.random.default_rng(6)
+    keep = exact.view != 2                                                     # view 2 sees nothing
+    problem = BundleProblem(exact.R0, exact.t0 + rng.normal(scale=0.01, size=exact.t0.shape), exact.K,
+                            exact.track[keep], exact.view[keep], exact.uv[keep], SIGMA)
+    correction, X1 = adjust(problem, np.zeros((6, 6)), X, np.ones(int(keep.sum())), 50)
+    after = np.linalg.norm(project_with_jacobians(problem, correction, X1, False)[0], axis=1)
+    assert np.all(np.isfinite(correction)) and np.abs(correction[2]).max() < 1e-9
+    assert np.abs(correction[[0, 1, 3, 4, 5]]).max() > 1e-4 and np.median(after) < 0.1
