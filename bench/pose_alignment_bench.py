@@ -19,7 +19,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.data.dataset import load_dataset
 from fruitnerfpp_ros.core.data.pose_alignment import PoseAlignmentConfig, align_poses
@@ -27,6 +26,7 @@ from fruitnerfpp_ros.core.data.transforms_format import read_transforms
 from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
 from fruitnerfpp_ros.core.evaluation.pose_errors import pose_errors
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
+from fruitnerfpp_ros.core.training.pose_start import corrected_poses
 
 NOISE = dict(pose_noise_m=0.02, pose_noise_deg=1.0)
 #: name -> the synth settings of the noisy twin (row48: test_pose_alignment's scene; row64_suite: the cpu suite's
@@ -39,14 +39,6 @@ SCENES = {
                        pose_noise_m=0.03, pose_noise_deg=1.5),
     'hemi48': dict(fruit='apple', count=40, views=48, resolution=(160, 160), trajectory='hemisphere', seed=9, **NOISE),
 }
-
-
-def _corrected(T: np.ndarray, correction: np.ndarray) -> np.ndarray:
-    """Poses with the alignment's corrections, the translations' mean removed (the gauge, as the training does)."""
-    out = T.copy()
-    out[:, :3, :3] = T[:, :3, :3] @ Rotation.from_rotvec(correction[:, :3]).as_matrix()
-    out[:, :3, 3] = T[:, :3, 3] + correction[:, 3:] - correction[:, 3:].mean(0)
-    return out
 
 
 def main() -> int:
@@ -74,7 +66,7 @@ def main() -> int:
                              T, PoseAlignmentConfig(enabled=True))
         seconds = time.perf_counter() - start
         before = pose_errors(T, truth, cameras, centres)
-        after = pose_errors(_corrected(T, result.correction), truth, cameras, centres)
+        after = pose_errors(corrected_poses(data, result.correction).double().numpy(), truth, cameras, centres)
         print(f"| {name} | {result.report['tracks']} | {seconds:.1f} | {before['reprojection_px_median']:.3f} / "
               f"{before['reprojection_px_p90']:.3f} | {after['reprojection_px_median']:.3f} / "
               f"{after['reprojection_px_p90']:.3f} |", flush=True)

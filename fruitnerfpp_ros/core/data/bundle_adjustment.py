@@ -13,6 +13,7 @@ observations instead of a finite-difference Jacobian and an iterative solve.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -20,7 +21,7 @@ from scipy.sparse import coo_matrix, csc_matrix, csr_matrix
 from scipy.sparse.linalg import spsolve
 from scipy.spatial.transform import Rotation
 
-__all__ = ['BundleProblem', 'adjust', 'project_with_jacobians']
+__all__ = ['BundleProblem', 'adjust', 'project', 'project_with_jacobians']
 
 #: Pairs of observations of one track per chunk of the reduced system's assembly (bounds its memory).
 _PAIR_CHUNK = 1 << 18
@@ -51,6 +52,11 @@ class BundleProblem:
     def n_views(self) -> int:
         return len(self.R0)
 
+    @functools.cached_property
+    def structure(self) -> _Structure:
+        """The reduced system's index arrays, built once for all the adjustments of this problem."""
+        return _Structure(self)
+
 
 def _skew(v: np.ndarray) -> np.ndarray:
     """[N, 3, 3] cross-product matrices of [N, 3] vectors."""
@@ -72,6 +78,19 @@ def _right_jacobian(w: np.ndarray) -> np.ndarray:
     return np.eye(3)[None] - a[:, None, None] * W + b[:, None, None] * (W @ W)
 
 
+def project(R: np.ndarray, t: np.ndarray, K: np.ndarray, X: np.ndarray, view: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels [N, 2] of world points ``X`` [N, 3] in views ``view`` (camera-to-world ``R`` [V, 3, 3], ``t`` [V, 3],
+    ``K`` [V, 4] fx, fy, cx, cy; OpenGL camera axes), their camera coordinates [N, 3] and whether each lies in front
+    of its camera (the pixels of the others are meaningless)."""
+    p = np.einsum('nji,nj->ni', R[view], X - t[view])              # camera coordinates (looking along -z)
+    z = -p[:, 2]
+    in_front = z > _MIN_DEPTH_M
+    zs = np.where(in_front, z, 1.0)
+    k = K[view]
+    return np.stack([k[:, 0] * p[:, 0] / zs + k[:, 2], -k[:, 1] * p[:, 1] / zs + k[:, 3]], 1), p, in_front
+
+
 def project_with_jacobians(problem: BundleProblem, correction: np.ndarray, X: np.ndarray, jacobians: bool = True
                            ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
     """Reprojection of every observation under ``correction`` [V, 6] and points ``X`` [P, 3].
@@ -79,26 +98,20 @@ def project_with_jacobians(problem: BundleProblem, correction: np.ndarray, X: np
     Returns (uv_error [M, 2] = projected - observed, px; in_front [M] bool; d uv / d correction [M, 2, 6];
     d uv / d X [M, 2, 3]); the Jacobians are None without ``jacobians``.
     """
-    view, track = problem.view, problem.track
+    view = problem.view
     w = correction[:, :3]
     R = problem.R0 @ Rotation.from_rotvec(w).as_matrix()
-    t = problem.t0 + correction[:, 3:]
-    Rv = R[view]
-    p = np.einsum('nji,nj->ni', Rv, X[track] - t[view])            # camera coordinates (looking along -z)
-    z = -p[:, 2]
-    in_front = z > _MIN_DEPTH_M
-    zs = np.where(in_front, z, 1.0)
-    k = problem.K[view]
-    uv = np.stack([k[:, 0] * p[:, 0] / zs + k[:, 2], -k[:, 1] * p[:, 1] / zs + k[:, 3]], 1)
+    uv, p, in_front = project(R, problem.t0 + correction[:, 3:], problem.K, X[problem.track], view)
     error = uv - problem.uv
     if not jacobians:
         return error, in_front, None, None
+    k, zs = problem.K[view], np.where(in_front, -p[:, 2], 1.0)
     du_dp = np.zeros((len(p), 2, 3))
     du_dp[:, 0, 0] = k[:, 0] / zs
     du_dp[:, 0, 2] = k[:, 0] * p[:, 0] / zs ** 2
     du_dp[:, 1, 1] = -k[:, 1] / zs
     du_dp[:, 1, 2] = -k[:, 1] * p[:, 1] / zs ** 2
-    Rt = np.transpose(Rv, (0, 2, 1))
+    Rt = np.transpose(R[view], (0, 2, 1))
     dp_dw = _skew(p) @ _right_jacobian(w)[view]                      # p = Exp(w)^T R0^T (X - t)
     J_c = np.concatenate([du_dp @ dp_dw, -(du_dp @ Rt)], axis=2)
     J_x = du_dp @ Rt
@@ -114,8 +127,8 @@ def _cost(problem: BundleProblem, correction: np.ndarray, X: np.ndarray, weight:
 
 class _Structure:
     """Index arrays of the reduced camera system, fixed for a problem: sums of per-observation terms per view and per
-    point (sparse indicator matrices), and the pairs of observations of one track with the view-pair block each adds
-    to."""
+    point (sparse indicator matrices), the pairs of observations of one track with the view-pair block each adds
+    to, and the 6 x 6 blocks' places in the 6V x 6V system (the views' own blocks, then the pairs')."""
 
     def __init__(self, problem: BundleProblem) -> None:
         track, view, V = problem.track, problem.view, problem.n_views
@@ -131,14 +144,19 @@ class _Structure:
         offset = np.arange(len(self.first)) - np.repeat(np.cumsum(n) - n, n)
         self.second = order[start[track[self.first]] + offset]              # observation l, same track
         keys = view[self.first].astype(np.int64) * V + view[self.second]
-        self.blocks, block_of_pair = np.unique(keys, return_inverse=True)
+        blocks, block_of_pair = np.unique(keys, return_inverse=True)
         self.by_block = csc_matrix((np.ones(len(keys)), (block_of_pair, np.arange(len(keys)))),
-                                   shape=(len(self.blocks), len(keys)))
+                                   shape=(len(blocks), len(keys)))
+        a, b = np.r_[np.arange(V), blocks // V], np.r_[np.arange(V), blocks % V]
+        i6 = np.arange(6)
+        self.rows = (6 * a[:, None, None] + i6[None, :, None]).repeat(6, axis=2).ravel()
+        self.cols = (6 * b[:, None, None] + i6[None, None, :]).repeat(6, axis=1).ravel()
 
 
-def _step(problem: BundleProblem, structure: _Structure, e: np.ndarray, J_c: np.ndarray, J_x: np.ndarray,
-          correction: np.ndarray, damping: float) -> tuple[np.ndarray, np.ndarray]:
+def _step(problem: BundleProblem, e: np.ndarray, J_c: np.ndarray, J_x: np.ndarray, correction: np.ndarray,
+          damping: float) -> tuple[np.ndarray, np.ndarray]:
     """One damped Gauss-Newton step (d correction [V, 6], d X [P, 3]) from weighted residuals and Jacobians."""
+    structure = problem.structure
     V, P = problem.n_views, structure.n_points
     view, track = problem.view, problem.track
     inv_var = 1.0 / problem.sigma ** 2
@@ -154,20 +172,11 @@ def _step(problem: BundleProblem, structure: _Structure, e: np.ndarray, J_c: np.
     Vp[:, i3, i3] = Vp[:, i3, i3] * (1.0 + damping) + 1e-9
     V_inv = np.linalg.inv(Vp)
     Y = W @ V_inv[track]                                                      # [M, 6, 3]
-    blocks = np.zeros((len(structure.blocks), 36))
+    blocks = np.zeros((structure.by_block.shape[0], 36))
     for lo in range(0, len(structure.first), _PAIR_CHUNK):
         k, m = structure.first[lo:lo + _PAIR_CHUNK], structure.second[lo:lo + _PAIR_CHUNK]
         blocks -= structure.by_block[:, lo:lo + _PAIR_CHUNK] @ (Y[k] @ np.transpose(W[m], (0, 2, 1))).reshape(-1, 36)
-    blocks = blocks.reshape(-1, 6, 6)
-    a, b = np.divmod(structure.blocks, V)
-    diagonal = a == b
-    blocks[diagonal] += U[a[diagonal]]
-    rows = (6 * a[:, None, None] + i6[None, :, None]).repeat(6, axis=2)
-    cols = (6 * b[:, None, None] + i6[None, None, :]).repeat(6, axis=1)
-    missing = np.setdiff1d(np.arange(V), a[diagonal])                        # views no track reaches: prior only
-    S = coo_matrix((np.r_[blocks.ravel(), U[missing].ravel()],
-                    (np.r_[rows.ravel(), (6 * missing[:, None, None] + i6[None, :, None]).repeat(6, 2).ravel()],
-                     np.r_[cols.ravel(), (6 * missing[:, None, None] + i6[None, None, :]).repeat(6, 1).ravel()])),
+    S = coo_matrix((np.r_[U.ravel(), blocks.ravel()], (structure.rows, structure.cols)),  # duplicates add up
                    shape=(6 * V, 6 * V)).tocsc()
     rhs = -g_c + structure.by_view @ np.einsum('nij,nj->ni', Y, g_x[track])
     d_c = np.asarray(spsolve(S, rhs.ravel())).reshape(V, 6)
@@ -184,7 +193,6 @@ def adjust(problem: BundleProblem, correction: np.ndarray, X: np.ndarray, weight
     Levenberg-Marquardt (Marquardt's diagonal damping): at most ``max_iterations`` cost evaluations, stopped when a
     step lowers the cost by less than ``tolerance`` of it.
     """
-    structure = _Structure(problem)
     cost = _cost(problem, correction, X, weight)
     damping, evaluations = 1e-4, 0
     e = J_c = J_x = None
@@ -193,7 +201,7 @@ def adjust(problem: BundleProblem, correction: np.ndarray, X: np.ndarray, weight
             error, _, J_c, J_x = project_with_jacobians(problem, correction, X)
             e = weight[:, None] * error
             J_c, J_x = weight[:, None, None] * J_c, weight[:, None, None] * J_x
-        d_c, d_x = _step(problem, structure, e, J_c, J_x, correction, damping)
+        d_c, d_x = _step(problem, e, J_c, J_x, correction, damping)
         trial_c, trial_x = correction + d_c, X + d_x
         trial = _cost(problem, trial_c, trial_x, weight)
         evaluations += 1

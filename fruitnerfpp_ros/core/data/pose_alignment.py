@@ -28,7 +28,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from fruitnerfpp_ros.core.data.bundle_adjustment import BundleProblem, adjust, project_with_jacobians
+from fruitnerfpp_ros.core.data.bundle_adjustment import BundleProblem, adjust, project, project_with_jacobians
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['PoseAlignmentConfig', 'PoseAlignment', 'align_poses']
@@ -164,9 +164,10 @@ def _measured_tracks(features: list, T: np.ndarray, K: np.ndarray, config: PoseA
     view_of, points_px = _observations(features)
     track, view, uv = _tracks(edges, view_of, points_px, len(T))
     X = _triangulate(T, K, track, view, uv)
-    error = np.linalg.norm(_project(T[:, :3, :3], T[:, :3, 3], K, X[track], view) - uv, axis=1)
+    projected, _, in_front = project(T[:, :3, :3], T[:, :3, 3], K, X[track], view)
+    error = np.where(in_front, np.linalg.norm(projected - uv, axis=1), np.inf)
     worst = np.zeros(len(X))
-    np.maximum.at(worst, track, np.where(np.isfinite(error), error, np.inf))
+    np.maximum.at(worst, track, error)
     keep = (worst < config.max_track_error_px)[track]
     kept_tracks, track = np.unique(track[keep], return_inverse=True)
     report.update(tracks=len(kept_tracks), observations=int(keep.sum()),
@@ -268,16 +269,6 @@ def _triangulate(T: np.ndarray, K: np.ndarray, track: np.ndarray, view: np.ndarr
     np.add.at(A_sum, track, A)
     np.add.at(b_sum, track, np.einsum('nij,nj->ni', A, origin))
     return np.linalg.solve(A_sum + 1e-9 * np.eye(3), b_sum[..., None])[..., 0]
-
-
-def _project(R: np.ndarray, t: np.ndarray, K: np.ndarray, X: np.ndarray, view: np.ndarray) -> np.ndarray:
-    """Pixels [N, 2] of world points ``X`` [N, 3] in views ``view``; NaN behind the camera."""
-    p = np.einsum('nji,nj->ni', R[view], X - t[view])
-    z = -p[:, 2]
-    k = K[view]
-    uv = np.stack([k[:, 0] * p[:, 0] / z + k[:, 2], -k[:, 1] * p[:, 1] / z + k[:, 3]], 1)
-    uv[z <= 1e-6] = np.nan
-    return uv
 
 
 def _bundle_adjust(T: np.ndarray, K: np.ndarray, X0: np.ndarray, track: np.ndarray, view: np.ndarray,

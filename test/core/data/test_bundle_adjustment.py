@@ -107,7 +107,7 @@ def test_the_minimum_is_the_one_a_general_solver_finds() -> None:
     np.testing.assert_allclose(correction, reference.x[:6 * V].reshape(V, 6), atol=1e-5)
 
 
-def test_a_step_that_would_put_a_point_behind_a_camera_is_refused() -> None:
+def test_a_start_with_a_point_behind_a_camera_is_returned_unchanged() -> None:
     problem, correction, X = _ring(views=4, points=6)
     weight = np.ones(len(problem.view))
     behind = X.copy()
