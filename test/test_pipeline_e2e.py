@@ -126,6 +126,34 @@ def test_the_pipeline_reads_the_dataset_and_the_checkpoint_once(tiny_trained_run
     assert result.count.count > 0 and 'mask_fruits' in result.count.stats
 
 
+def test_a_moved_run_counts_and_scores_as_it_did_from_any_directory(pipeline_run, tiny_apple_dataset: Path,
+                                                                    tmp_path: Path, monkeypatch) -> None:
+    from fruitnerfpp_ros.core.pipeline import count_run
+    from fruitnerfpp_ros.core.training import RunDir
+    from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_checkpoint
+
+    run, _ = pipeline_run
+    site = tmp_path / 'site'
+    shutil.copytree(run, site / 'run')
+    shutil.copytree(tiny_apple_dataset, site / 'data')
+    checkpoint = RunDir(site / 'run').latest_checkpoint
+    state = load_checkpoint(checkpoint)
+    state['dataset_dir'] = 'data'   # as older releases wrote it: relative to the directory training ran in
+    state.pop('dataset_from_run', None)
+    save_checkpoint(state, checkpoint)
+    (tmp_path / 'elsewhere').mkdir()
+    monkeypatch.chdir(tmp_path / 'elsewhere')
+    own_counts, own_eval = (json.loads((run / name).read_text()) for name in ('counts.json', 'eval.json'))
+    count, _, _ = count_run(site / 'run', out=tmp_path / 'counts.json')
+    assert 'mask_fruits' in count.stats and count.count == own_counts['total']   # its views' masks were read
+    rc, out, err = _cli(['eval', site / 'run', '--json'])   # the run's counts, the ground truth beside its dataset
+    assert rc == 0, err
+    scored = json.loads(out)
+    for key in ('count', 'gt_count', 'gt_unseen', 'tp', 'recall', 'f1'):   # as the run scored itself
+        assert scored[key] == own_eval[key], key
+    assert scored['count'] > 0
+
+
 @pytest.mark.parametrize('error', ['DatasetError', 'CheckpointError'])
 def test_a_run_whose_dataset_is_gone_still_counts_its_cloud(pipeline_run, tmp_path: Path, monkeypatch, caplog,
                                                             error: str) -> None:
@@ -151,6 +179,15 @@ def test_missing_files_are_one_line_errors(tmp_path: Path) -> None:
     (tmp_path / 'counts.json').write_text(json.dumps({'total': 0, 'fruits': []}))
     rc, out, err = _cli(['eval', tmp_path / 'counts.json', '--gt', tmp_path / 'gt_fruits.json'])
     assert rc == 2 and 'gt_fruits.json: ground truth file not found' in err
+    rc, out, err = _cli(['eval', tmp_path / 'counts.json', '--gt', tmp_path])   # a directory without it
+    assert rc == 2 and 'gt_fruits.json: ground truth file not found' in err
+    rc, out, err = _cli(['eval', tmp_path / 'counts.json'])   # no run, no --gt
+    assert rc == 2 and 'give --gt' in err
+    rc, out, err = _cli(['eval', tmp_path / 'counts.json', '--gt', tmp_path / 'counts.json' / 'x'])  # unreadable
+    assert rc == 2 and 'Traceback' not in err
+    (tmp_path / 'empty').mkdir()
+    rc, out, err = _cli(['eval', tmp_path / 'empty', '--gt', tmp_path / 'gt_fruits.json'])
+    assert rc == 2 and 'no counts.json in this directory' in err
     (tmp_path / 'gt_fruits.json').write_text(json.dumps({'fruit': []}))
     rc, out, err = _cli(['eval', tmp_path / 'counts.json', '--gt', tmp_path / 'gt_fruits.json'])
     assert rc == 2 and '"fruits" list' in err

@@ -77,6 +77,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                                           'passing the density and fruit-probability thresholds.')
     p.add_argument('run_dir', type=Path, help='training run directory')
     p.add_argument('--out', type=Path, help='output .ply (default RUN_DIR/cloud.ply; a .npz is written beside)')
+    p.add_argument('--dataset', type=Path, help='the dataset the run trained on, where it was moved (default: the '
+                   'one its checkpoint names, or found beside the run)')
     p.add_argument('--config', type=Path, help='export YAML (e.g. config/export.yaml)')
     p.add_argument('--device', default='auto', help='auto, cpu, cuda, cuda:N')
     _export_args(p)
@@ -87,22 +89,27 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('source', type=Path, help='run directory (its cloud.npz / cloud.ply) or a .ply / .npz cloud')
     p.add_argument('--out', type=Path, help='counts.json path (default: next to the cloud)')
     p.add_argument('--config', type=Path, help='clustering YAML (e.g. config/clustering.yaml)')
+    p.add_argument('--dataset', type=Path, help="a run directory's dataset, where it was moved: its training views' "
+                   'masks check the count (default: the one its checkpoint names, or found beside the run)')
     _cluster_args(p)
     p.set_defaults(func=_run_count)
 
     p = subparsers.add_parser('eval', help='score a counts.json against gt_fruits.json',
                               description='One-to-one matching within one GT fruit diameter: Hungarian (headline) '
                                           "and the paper's greedy nearest-unmatched.")
-    p.add_argument('counts', type=Path, help='counts.json')
-    p.add_argument('--gt', type=Path, required=True, help='gt_fruits.json')
+    p.add_argument('counts', type=Path, help='run directory (its counts.json) or a counts.json')
+    p.add_argument('--gt', type=Path, help="gt_fruits.json or the directory holding it (default: the one beside "
+                   "the run's dataset)")
     p.add_argument('--json', action='store_true', help='print one JSON object (count, gt_count, precision, '
                    'recall, f1, ...)')
     p.add_argument('--out', type=Path, help='also write the metrics to this eval.json')
     p.add_argument('--tolerance', type=float, default=1.0, help='match reach in GT diameters (default 1)')
     p.add_argument('--include-unseen', action='store_true',
-                   help='count GT fruits seen by no training view in the recall (excluded by default)')
+                   help="count GT fruits seen by no training view in the recall (excluded by default; the run's "
+                        'dataset, or --dataset, tells which views trained)')
     p.add_argument('--picture', type=Path, help='also draw hits / misses / false counts to this PNG (top view)')
-    p.add_argument('--dataset', type=Path, help='with --picture: the dataset whose view seeing most fruits is drawn')
+    p.add_argument('--dataset', type=Path, help="the dataset the count came from (default: the run's): its training "
+                   'views decide which fruits were seen; with --picture, its view seeing most fruits is drawn')
     p.set_defaults(func=_run_eval)
 
     p = subparsers.add_parser('run', help='train -> export -> count (-> eval) on a dataset',
@@ -124,7 +131,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def _run_export(args: argparse.Namespace) -> int:
     from fruitnerfpp_ros.core.pipeline import export_run
 
-    result = export_run(args.run_dir, _export_config(args, args.config), device=args.device, out=args.out)
+    result = export_run(args.run_dir, _export_config(args, args.config), device=args.device, out=args.out,
+                        dataset_dir=args.dataset)
     out = args.out or args.run_dir / 'cloud.ply'
     print(result.report.explain())
     print(f'{len(result.cloud)} fruit points -> {out} (+ {Path(out).with_suffix(".npz").name})')
@@ -137,24 +145,27 @@ def _run_count(args: argparse.Namespace) -> int:
 
     config = _cluster_config(args, args.config)
     with partition_pool(config.n_jobs) as pool:
-        count, cloud, counts_path = count_run(args.source, config, out=args.out, executor=pool)
+        count, cloud, counts_path = count_run(args.source, config, out=args.out, executor=pool,
+                                              dataset_dir=args.dataset)
     print(f'fruits: {count.count} (from {len(cloud)} points, {int((count.labels == 0).sum())} noise) -> '
           f'{counts_path}')
     return 0
 
 
 def _run_eval(args: argparse.Namespace) -> int:
+    from fruitnerfpp_ros.core.evaluation.run_inputs import run_eval_inputs
     from fruitnerfpp_ros.core.pipeline import evaluate_run
 
-    metrics = evaluate_run(args.counts, args.gt, out=args.out, tolerance=args.tolerance,
-                           exclude_unseen=not args.include_unseen)
+    inputs = run_eval_inputs(args.counts, args.gt, args.dataset)
+    metrics = evaluate_run(inputs.counts_json, inputs.gt_json, out=args.out, tolerance=args.tolerance,
+                           exclude_unseen=not args.include_unseen, train_views=inputs.train_views)
     print(json.dumps(metrics.to_json()) if args.json else metrics.table())
     if args.picture is not None:
         from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth, load_predicted_centers
         from fruitnerfpp_ros.core.evaluation.picture import write_count_picture
 
-        write_count_picture(args.picture, args.dataset, load_predicted_centers(args.counts),
-                            load_ground_truth(args.gt), metrics)
+        write_count_picture(args.picture, inputs.dataset_dir, load_predicted_centers(inputs.counts_json),
+                            load_ground_truth(inputs.gt_json), metrics)
     return 0
 
 

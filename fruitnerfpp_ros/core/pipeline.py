@@ -242,8 +242,8 @@ def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *
 
 
 def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *, out: str | Path | None = None,
-              executor: Executor | None = None,
-              progress: ProgressCallback | None = None) -> tuple[CountResult, FruitPointCloud, Path]:
+              executor: Executor | None = None, progress: ProgressCallback | None = None,
+              dataset_dir: str | Path | None = None) -> tuple[CountResult, FruitPointCloud, Path]:
     """Count the fruits of a run directory's cloud (``cloud.npz`` / ``cloud.ply``) or of a cloud file.
 
     Writes ``counts.json`` (to ``out``, default next to the cloud) and rewrites the cloud's ``.ply`` and ``.npz``
@@ -251,7 +251,8 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
     run (see :func:`~fruitnerfpp_ros.core.clustering.counter.count_fruits`; None: in this process). A trained run
     directory's count also holds the fruit its training views' masks agree on (``cluster_config.masks``), as
     :func:`run_pipeline`'s does; a cloud file alone has no views to check, nor a run whose dataset is gone or whose
-    checkpoint this release cannot read (logged).
+    checkpoint this release cannot read (logged). ``dataset_dir``: the run's dataset where it was moved (default:
+    the one its checkpoint names, or found beside the run).
 
     Returns:
         (the count, the cloud, the counts.json path).
@@ -268,7 +269,7 @@ def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *
     if Path(source).is_dir() and (cluster_config or ClusterConfig()).masks.enabled and \
             RunDir(source).latest_checkpoint.is_file():
         try:
-            views = load_run_views(source)
+            views = load_run_views(source, dataset_dir)
         except (CheckpointError, DatasetError) as err:   # an older run, or its dataset moved: count the cloud
             _LOG.warning('%s: counting the cloud alone, without the masks\' fruit: %s', source, err)
     count = count_cloud(cloud, cluster_config, cloud_path=cloud_path, counts_path=counts_path, executor=executor,

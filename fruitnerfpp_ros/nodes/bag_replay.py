@@ -101,6 +101,10 @@ def _roles_in_bag(source: BagSource, assembler: FrameAssembler, settings: Counte
     used += assembler.optional_roles()
     for role in used:
         topic = assembler.topic_of(role)
+        compressed = f'{topic}/compressed'  # image_transport's name for the JPEG / PNG stream of an image topic
+        if role == 'image' and topic not in by_topic and compressed in by_topic:
+            log(LogLevel.INFO, f'{bag_path}: no topic {topic} in the bag; reading its compressed stream {compressed}')
+            topic = compressed
         if topic not in by_topic:
             if role in assembler.required_roles():
                 raise BagError(f'{bag_path}: no topic {topic} ({role}) in the bag; topics in the bag: '

@@ -82,6 +82,7 @@ class FrameAssembler:
         self.dropped_pending = 0
         self.time_jumps = 0
         self._write_errors_logged = 0
+        self._other_frames: set[str] = set()
 
     # ------------------------------------------------------------------ input
     def topic_of(self, role: str) -> str:
@@ -272,11 +273,23 @@ class FrameAssembler:
             self._throttled(LogLevel.WARN, _kind(f'depth:{err}'), f'{err}; frame at {stamp_ns} ns kept without depth')
             return None
 
+    def _check_world_frame(self, msg: Any) -> None:
+        """Warn once per frame when a pose message is given in another frame than ``world_frame`` (the poses are
+        used as they are; every output is stamped ``world_frame``, so a viewer would draw it in the wrong place)."""
+        frame, s = str(msg.header.frame_id), self.settings
+        if frame and frame != s.world_frame and frame not in self._other_frames:
+            self._other_frames.add(frame)
+            topic = s.pose_topic if s.pose_source == 'pose' else s.odometry_topic
+            self._log(LogLevel.WARN, f'{topic}: poses in frame {frame!r}, world_frame is {s.world_frame!r}; the '
+                      f'outputs are stamped {s.world_frame!r}: set world_frame:={frame} if that is the fixed frame')
+
     def _camera_frame(self, image_msg: Any) -> str:
         return self.settings.camera_frame or str(image_msg.header.frame_id)
 
     def _pose_for(self, stamp_ns: int, items: dict[str, Any]) -> np.ndarray:
         s = self.settings
+        if s.pose_source in ('pose', 'odometry'):
+            self._check_world_frame(items[s.pose_source])
         if s.pose_source == 'pose':
             return transform_from_pose_msg(items['pose'].pose, topic=s.pose_topic)
         if s.pose_source == 'odometry':

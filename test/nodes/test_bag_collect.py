@@ -86,6 +86,51 @@ def test_renamed_topic_via_params_file(tmp_path: Path) -> None:
     assert len(collect_keyframes(bag, tmp_path / 'kf2', settings, log=Logs()).store) == 3
 
 
+def test_a_bag_with_only_the_compressed_stream_is_read_from_it(tmp_path: Path) -> None:
+    """image_transport records ``/camera/image_raw/compressed``; the default ``image_topic`` finds it."""
+    import cv2
+    from sensor_msgs.msg import CompressedImage
+
+    msgs = []
+    for topic, msgtype, stamp, msg in bf.messages(4):
+        if topic == '/camera/image_raw':   # the same pixels as PNG (lossless), as compressed_image_transport sends
+            rgb = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.width, 3)
+            png = cv2.imencode('.png', rgb[..., ::-1])[1].tobytes()
+            topic, msgtype = '/camera/image_raw/compressed', 'sensor_msgs/msg/CompressedImage'
+            msg = CompressedImage(header=msg.header, format='rgb8; png compressed bgr8', data=png)
+        msgs.append((topic, msgtype, stamp, msg))
+    bag = bf.write_bag(tmp_path / 'bag', msgs)
+    logs = Logs()
+    assembler = collect_keyframes(bag, tmp_path / 'kf', SETTINGS, log=logs)
+    assert 'reading its compressed stream /camera/image_raw/compressed' in logs.text()
+    data = read_transforms(tmp_path / 'kf')
+    assert len(data.frames) == 4 and assembler.status().errors == {}
+    stored = cv2.imread(str(tmp_path / 'kf' / data.frames[2].file_path))[..., ::-1]
+    assert np.array_equal(stored, bf.frame_pixels(2)[0])
+
+
+def test_poses_in_another_frame_than_world_frame_are_warned_once(tmp_path: Path) -> None:
+    msgs = bf.messages(4)
+    for topic, _, _, msg in msgs:
+        if topic == '/camera/pose':
+            msg.header.frame_id = 'odom'
+    bag = bf.write_bag(tmp_path / 'bag', msgs)
+    logs = Logs()
+    collect_keyframes(bag, tmp_path / 'kf', SETTINGS, log=logs)   # world_frame: map (the default)
+    warned = [m for level, m in logs if "poses in frame 'odom'" in m]
+    assert len(warned) == 1 and level_of(logs, warned[0]) is LogLevel.WARN
+    assert "set world_frame:=odom" in warned[0]
+    assert len(read_transforms(tmp_path / 'kf').frames) == 4                  # the poses are used as they are
+    quiet = Logs()
+    odom = settings_from_parameters({'min_translation_m': 0.1, 'world_frame': 'odom'})
+    collect_keyframes(bag, tmp_path / 'kf2', odom, log=quiet)
+    assert 'poses in frame' not in quiet.text()
+
+
+def level_of(logs: Logs, message: str) -> LogLevel:
+    return next(level for level, m in logs if m == message)
+
+
 def test_missing_and_unreadable_bags(tmp_path: Path) -> None:
     """Nothing to recover is a one-line BagError (truncated bags: test_bag_recovery.py)."""
     with pytest.raises(BagError, match='no such bag'):

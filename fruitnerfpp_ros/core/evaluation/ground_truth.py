@@ -93,6 +93,10 @@ def _read_json(path: Path, what: str) -> Any:
         return json.loads(path.read_text())
     except FileNotFoundError as err:
         raise EvaluationError(f'{path}: {what} file not found') from err
+    except IsADirectoryError as err:
+        raise EvaluationError(f'{path}: a directory, not the {what} file') from err
+    except OSError as err:
+        raise EvaluationError(f'{path}: cannot read the {what} file ({err.strerror or err})') from err
     except (json.JSONDecodeError, UnicodeDecodeError) as err:
         raise EvaluationError(f'{path}: not valid JSON: {err}') from err
 

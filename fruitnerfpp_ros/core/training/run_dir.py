@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,28 @@ class RunDir:
     @property
     def refined_poses_path(self) -> Path:
         return self.root / 'refined_poses.json'
+
+    def dataset_record(self, dataset_dir: str | Path) -> dict[str, str]:
+        """How a checkpoint names the dataset the run trains on: its absolute path, and its path from the run
+        directory (a run moved together with its dataset still finds it)."""
+        dataset = Path(dataset_dir).resolve()
+        return {'dataset_dir': str(dataset), 'dataset_from_run': os.path.relpath(dataset, self.root.resolve())}
+
+    def find_dataset(self, state: dict[str, Any]) -> Path:
+        """The dataset a checkpoint's ``state`` was trained on (:meth:`dataset_record`), wherever the caller runs.
+
+        Tried in turn: the recorded path; the path from the run directory; and for checkpoints written before
+        both were recorded (a path relative to the trainer's working directory), that path from the working
+        directory, then from each directory above the run (the working directory the run was started from).
+        Returns the recorded path when none holds a dataset (reading it then names that path).
+        """
+        stored = Path(state['dataset_dir'])
+        candidates = [stored]
+        if state.get('dataset_from_run'):
+            candidates.append(Path(os.path.normpath(self.root.absolute() / state['dataset_from_run'])))
+        if not stored.is_absolute():
+            candidates += [parent / stored for parent in self.root.resolve().parents]
+        return next((c for c in candidates if (c / 'transforms.json').is_file()), stored)
 
     def create(self) -> None:
         self.checkpoint_dir.mkdir(parents=True, exist_ok=True)

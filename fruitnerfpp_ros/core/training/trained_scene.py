@@ -135,5 +135,5 @@ def load_trained_scene(run_dir: str | Path, device: str = 'auto') -> TrainedScen
     field.eval()
     for p in field.parameters():
         p.requires_grad_(False)
-    return TrainedScene(field, aabb, config, Path(state['dataset_dir']), int(state['stage']), grid, scale,
+    return TrainedScene(field, aabb, config, run.find_dataset(state), int(state['stage']), grid, scale,
                         corrections)

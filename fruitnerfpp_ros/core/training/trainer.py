@@ -161,7 +161,7 @@ class _Checkpointer:
         model = self.model
         save_checkpoint({
             'version': CHECKPOINT_VERSION, 'config': config_to_mapping(self.config),
-            'dataset_dir': str(self.dataset_dir), 'aabb': self.aabb, 'scale': self.scale.to_json(),
+            **self.run.dataset_record(self.dataset_dir), 'aabb': self.aabb, 'scale': self.scale.to_json(),
             **progress.to_state(),
             'field': model.field.state_dict(), 'grid': model.grid.state_dict(),
             'poses': None if model.pose_refinement is None else model.pose_refinement.state_dict(),
@@ -263,9 +263,9 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     run = RunDir(run_dir)
     config, state = _resolved_config(run, config, resume)
     dataset = load_dataset(dataset_dir, eval_every=config.data.eval_every)
-    if state is not None and Path(state['dataset_dir']).resolve() != Path(dataset_dir).resolve():
+    if state is not None and run.find_dataset(state).resolve() != Path(dataset_dir).resolve():
         log.warning('resume: dataset %s differs from the one the run started with (%s)', dataset_dir,
-                    state['dataset_dir'])
+                    run.find_dataset(state))
     start = None
     if state is not None:
         aabb, scale = np.asarray(state['aabb']), scale_from_json(state['scale'])
