@@ -34,7 +34,8 @@ class CounterSettings:
 
     image_topic: str = _p('/camera/image_raw', 'Camera images: sensor_msgs/Image (rgb8, bgr8, rgba8, bgra8, mono8), '
                           'or sensor_msgs/CompressedImage when compressed_image is true.')
-    compressed_image: bool = _p(False, 'Subscribe to image_topic as sensor_msgs/CompressedImage (jpeg/png).')
+    compressed_image: bool = _p(False, 'Subscribe to image_topic as sensor_msgs/CompressedImage (jpeg/png). The bag '
+                                'replay reads image_topic/compressed by itself when only that is recorded.')
     camera_info_topic: str = _p('/camera/camera_info', 'sensor_msgs/CameraInfo of the camera; plumb_bob, '
                                 'rational_polynomial and equidistant distortion is undone.')
     mask_topic: str = _p('/camera/instance_mask', 'Instance masks, sensor_msgs/Image mono16/16UC1/32SC1 '
@@ -59,7 +60,8 @@ class CounterSettings:
         '/tf_static chain world_frame -> camera_frame, interpolated to the image stamp.')
     pose_topic: str = _p('/camera/pose', 'geometry_msgs/PoseStamped topic (pose_source pose).')
     odometry_topic: str = _p('/odom', 'nav_msgs/Odometry topic (pose_source odometry).')
-    world_frame: str = _p('map', 'Fixed frame of the poses and of every output.')
+    world_frame: str = _p('map', 'Fixed frame of the poses and of every output (poses stamped in another '
+                                 'frame are used as given, with one warning per frame).')
     camera_frame: str = _p('', "Camera optical frame (REP-103: z forward, x right, y down); '' = the image's "
                            'header frame_id.')
     base_frame: str = _p('base_link', 'Robot body frame that the odometry pose describes (pose_source odometry).')
