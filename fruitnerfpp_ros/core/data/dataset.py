@@ -126,9 +126,16 @@ def _read_depth(path: Path, unit_m: float, size: tuple[int, int], image_path: Pa
 
 
 def _read_label_mask(path: Path, what: str) -> np.ndarray:
+    """[H, W] int32 labels of a mask image: a grey one as stored; a colour-coded one (an id per colour, as
+    annotation tools export them) numbered by colour, black = 0 (alpha ignored)."""
     mask = _read_image(path, flags=cv2.IMREAD_UNCHANGED, what=what)
-    if mask.ndim == 3:  # colour-coded masks: use the first channel (ids < 256)
-        mask = mask[..., 0]
+    if mask.ndim == 3:
+        colour = mask[..., :3]
+        if (colour == colour[..., :1]).all():  # grey stored in three channels
+            return colour[..., 0].astype(np.int32)
+        packed = (colour[..., 0].astype(np.int64) << 32) | (colour[..., 1].astype(np.int64) << 16) | colour[..., 2]
+        values, labels = np.unique(packed, return_inverse=True)
+        return (labels.reshape(packed.shape) + int(values[0] != 0)).astype(np.int32)
     return mask.astype(np.int32)
 
 
@@ -187,7 +194,8 @@ def load_dataset(dataset_dir: str | Path, *, eval_every: int = 8, require_instan
         if frame.instance_path is None:
             if require_instances:
                 raise DatasetError(f'{dataset_dir / "transforms.json"} frame {index} ({frame.file_path}): '
-                                   'no instance_path (instance masks are required for training)')
+                                   'no instance_path (instance masks are required for training; make them with '
+                                   '`fruitnerfpp segment DATA_DIR`, --method semantic from its fruit masks)')
             instance = np.zeros(size, np.int32)
         else:
             instance = _read_label_mask(dataset_dir / frame.instance_path, 'instance mask')

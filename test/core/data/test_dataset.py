@@ -61,6 +61,26 @@ def test_semantic_masks_read_when_named(scene: Path, tmp_path: Path) -> None:
     assert int(ds.semantic_masks.sum()) == 10 * 4 * 32
 
 
+def test_colour_coded_masks_give_one_instance_per_colour(scene: Path, tmp_path: Path) -> None:
+    """Annotation tools export an id per colour; two colours sharing a channel value stay two fruits."""
+    data = _copy(scene, tmp_path)
+    raw = json.loads((data / 'transforms.json').read_text())
+    (data / 'semantics').mkdir()
+    for i, frame in enumerate(raw['frames']):
+        colour = np.zeros((32, 32, 3), np.uint8)
+        colour[2:8, 2:8] = (0, 0, 255)                       # BGR: red
+        colour[20:26, 10:16] = (0, 128, 255)                 # orange: the same blue and red as the red fruit
+        cv2.imwrite(str(data / frame['instance_path']), colour)
+        cv2.imwrite(str(data / f'semantics/{i}.png'), colour)   # a red-on-black fruit mask, no blue at all
+        frame['semantic_path'] = f'semantics/{i}.png'
+    (data / 'transforms.json').write_text(json.dumps(raw))
+    ds = load_dataset(data)
+    ids = ds.instance_masks[0].numpy()
+    assert ids[0, 0] == 0 and ids[4, 4] > 0 and ids[22, 12] > 0 and ids[4, 4] != ids[22, 12]
+    assert len(np.unique(ids)) == 3
+    assert int(ds.semantic_masks[0].sum()) == 2 * 36
+
+
 def test_missing_mask_names_file(scene: Path, tmp_path: Path) -> None:
     data = _copy(scene, tmp_path)
     (data / 'instances/0003.png').unlink()
