@@ -114,7 +114,8 @@ class SceneScale(NamedTuple):
 
     Attributes:
         fruit_diameter_m: the fruit diameter every length of the method follows from.
-        source: ``config`` (given), ``masks`` (measured) or ``default`` (nothing measurable).
+        source: ``config`` (given), ``masks`` (measured), ``clamped`` (measured outside ``diameter_range_m``: the
+            range's end is used) or ``default`` (nothing measurable).
         fruit_region: [2, 3] box (m) around the fruit voxels, or None when none was found.
         n_fruit_voxels: fruit voxels of the fine vote.
         n_masks_measured: masks whose diameter entered the estimate.
@@ -324,7 +325,9 @@ def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: 
     elif len(diameters) < 3:
         diameter, source = float(config.default_diameter_m), 'default'
     else:
-        diameter, source = float(np.clip(np.percentile(diameters, config.diameter_percentile), lo, hi)), 'masks'
+        measured = float(np.percentile(diameters, config.diameter_percentile))
+        diameter = float(np.clip(measured, lo, hi))
+        source = 'masks' if diameter == measured else 'clamped'
     if region is not None:  # its percentiles cut the fruit at the crown's edges: the region holds them whole
         region = region + np.array([[-diameter], [diameter]])
     return SceneScale(diameter, source, region, n_fruit, 0 if source == 'config' else len(diameters))

@@ -277,6 +277,11 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     save_config(config, run.config_path)
     atomic_write_text(run.root / SCALE_JSON, json.dumps({**scale.to_json(), 'aabb': np.round(aabb, 4).tolist()},
                                                         indent=1))
+    if scale.source == 'clamped':
+        log.warning('the fruit measured from the masks and poses is outside scale.diameter_range_m; using %.3f m: '
+                    'are the poses in metres (a COLMAP reconstruction is not)? Every length of the pipeline follows '
+                    'the fruit size in metres: scale the poses to metres, or set scale.fruit_diameter_m and '
+                    'scale.diameter_range_m in their units', scale.fruit_diameter_m)
     if scale.source == 'default':
         log.warning('could not measure the fruit size from the masks (%d fruit voxels); using %.3f m: set '
                     'scale.fruit_diameter_m if that is far off', scale.n_fruit_voxels, scale.fruit_diameter_m)

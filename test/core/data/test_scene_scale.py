@@ -52,6 +52,18 @@ def test_the_same_spheres_measure_alike_however_far_the_cameras_stand(tmp_path: 
     assert 1.4 * radii.mean() < measured[0] < 2.6 * radii.mean()
 
 
+def test_a_measurement_outside_the_range_is_marked_clamped(tmp_path: Path) -> None:
+    """Poses not in metres (a COLMAP reconstruction) measure the fruit outside the range: the range's end is used,
+    and the scale says so (the trainer warns)."""
+    scene = make_sphere_scene(tmp_path / 's', views=20, size=64, fruits=8)
+    dataset = load_dataset(scene, eval_every=0)
+    measured = estimate_scene_scale(dataset, _search_box(dataset))
+    assert measured.source == 'masks'
+    d = measured.fruit_diameter_m
+    clamped = estimate_scene_scale(dataset, _search_box(dataset), ScaleConfig(diameter_range_m=(d / 4, d / 2)))
+    assert clamped.source == 'clamped' and clamped.fruit_diameter_m == pytest.approx(d / 2)
+
+
 def test_a_given_diameter_is_used_and_nothing_measurable_falls_back(tmp_path: Path) -> None:
     scene = make_sphere_scene(tmp_path / 's', views=6, size=32, fruits=4)
     dataset = load_dataset(scene, eval_every=0)
