@@ -151,8 +151,9 @@ class FruitCounterNode(Node):
         self._auto_started = False
         self._restore_runs()
         trigger = f'auto-train after {s.auto_train_after}' if s.auto_train_after else 'train on ~/train'
-        masks = f'masks from {s.mask_topic}' if s.mask_source == 'topic' else \
-            f'masks from the {s.mask_source} segmenter'
+        masks = {'topic': f'masks from {s.mask_topic}',
+                 'semantic_topic': f'fruit masks from {s.mask_topic} split into blobs'}.get(
+            s.mask_source, f'masks from the {s.mask_source} segmenter')
         self.get_logger().info(f'collecting keyframes into {self.store.directory} (pose source {s.pose_source}, '
                                f'{masks}, {trigger})')
 

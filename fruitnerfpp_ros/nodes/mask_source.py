@@ -18,8 +18,8 @@ if TYPE_CHECKING:
     from fruitnerfpp_ros.core.segmentation import Segmenter, SegmenterConfig
     from fruitnerfpp_ros.nodes.params import CounterSettings
 
-__all__ = ['MaskSource', 'TopicMaskSource', 'SegmenterMaskSource', 'segmenter_config_from_settings',
-           'mask_source_from_settings']
+__all__ = ['MaskSource', 'TopicMaskSource', 'FruitMaskTopicSource', 'SegmenterMaskSource',
+           'segmenter_config_from_settings', 'mask_source_from_settings']
 
 
 class MaskSource(Protocol):
@@ -52,6 +52,19 @@ class TopicMaskSource:
         return mask_from_msg(mask_msg, topic=str(self.topic), expected_shape=rgb.shape[:2])
 
 
+class FruitMaskTopicSource(TopicMaskSource):
+    """Binary fruit masks published on a topic (non-zero = fruit), split into instances by connected blobs
+    (:func:`~fruitnerfpp_ros.core.segmentation.semantic_instances.instances_of_mask`)."""
+
+    def __init__(self, topic: str, config: SegmenterConfig) -> None:
+        super().__init__(topic)
+        self.config = config
+
+    def instances_for(self, rgb: np.ndarray, mask_msg: Any | None) -> np.ndarray:
+        from fruitnerfpp_ros.core.segmentation.semantic_instances import instances_of_mask
+        return instances_of_mask(super().instances_for(rgb, mask_msg) > 0, self.config)
+
+
 class SegmenterMaskSource:
     """Instance masks computed from the image by a core segmenter (no mask topic)."""
 
@@ -78,7 +91,8 @@ def segmenter_config_from_settings(settings: CounterSettings) -> SegmenterConfig
 
 
 def mask_source_from_settings(settings: CounterSettings) -> MaskSource:
-    """``mask_source: topic`` -> :class:`TopicMaskSource` on ``mask_topic``; a segmenter method ->
+    """``mask_source: topic`` -> :class:`TopicMaskSource` on ``mask_topic``; ``semantic_topic`` ->
+    :class:`FruitMaskTopicSource` on it (blobs as ``segmenter_config_file`` sets them); a segmenter method ->
     :class:`SegmenterMaskSource` with the core segmenter built (and its model loaded) now.
 
     Raises:
@@ -88,6 +102,9 @@ def mask_source_from_settings(settings: CounterSettings) -> MaskSource:
     """
     if settings.mask_source == 'topic':
         return TopicMaskSource(settings.mask_topic)
+    if settings.mask_source == 'semantic_topic':
+        from fruitnerfpp_ros.core.segmentation import SegmenterConfig
+        return FruitMaskTopicSource(settings.mask_topic, SegmenterConfig.load(settings.segmenter_config_file))
     from fruitnerfpp_ros.core.segmentation import build_segmenter
     config = segmenter_config_from_settings(settings)
     try:

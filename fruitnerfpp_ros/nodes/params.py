@@ -45,10 +45,12 @@ class CounterSettings:
                           'millimetres or 32FC1 metres, 0 / NaN = no return, same size, frame and stamp as the image; '
                           "training then adds a depth loss. '' = no depth. A frame never waits for a silent depth "
                           'topic: it is kept without depth (and /diagnostics warns).')
-    mask_source: Literal['topic', 'fallback', 'torchscript', 'sam'] = _p(
-        'topic', "Where instance masks come from: 'topic' = mask_topic; 'fallback' = the built-in fruit-agnostic "
-        "colour segmenter run on each image; 'torchscript' / 'sam' = a TorchScript instance-segmentation model / "
-        'Segment Anything loaded from segmenter_checkpoint. With a segmenter, mask_topic is not subscribed.')
+    mask_source: Literal['topic', 'semantic_topic', 'fallback', 'torchscript', 'sam'] = _p(
+        'topic', "Where instance masks come from: 'topic' = mask_topic; 'semantic_topic' = mask_topic carries binary "
+        'fruit masks (non-zero = fruit, e.g. mono8 0 / 255 from a semantic segmenter), split into instances by '
+        "connected blobs; 'fallback' = the built-in fruit-agnostic colour segmenter run on each image; "
+        "'torchscript' / 'sam' = a TorchScript instance-segmentation model / Segment Anything loaded from "
+        'segmenter_checkpoint. With a segmenter, mask_topic is not subscribed.')
     segmenter_checkpoint: str = _p('', "Local model file for mask_source 'torchscript' (a torch.jit.save file) or "
                                    "'sam' (a Segment Anything .pth); nothing is downloaded.")
     segmenter_config_file: str = _p('', "Optional SegmenterConfig YAML (config/segmentation.yaml): the segmenter's "

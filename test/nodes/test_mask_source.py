@@ -57,6 +57,26 @@ def test_fallback_mask_source_makes_keyframes_without_a_mask_topic(tmp_path: Pat
     assert (instances[6:14, 10:20] == 1).all() and instances.sum() == 80
 
 
+def test_binary_fruit_masks_on_the_mask_topic_become_blob_instances(tmp_path: Path) -> None:
+    """A semantic segmenter publishes mono8 0 / 255: with 'topic' that is one fruit of id 255 per image; with
+    'semantic_topic' each blob is a fruit."""
+    settings = settings_from_parameters({'mask_source': 'semantic_topic', 'min_translation_m': 0.1})
+    assembler = FrameAssembler(settings, KeyframeStore(tmp_path, mask_source='semantic_topic'), Logs())
+    assert assembler.mask_source.topic == '/camera/instance_mask' and 'mask' in assembler.required_roles()
+    for topic, _, stamp, msg in bf.messages(3):
+        if topic == '/camera/instance_mask':
+            fruit = np.zeros((bf.H, bf.W), np.uint8)
+            fruit[2:6, 2:6] = 255
+            fruit[12:18, 20:28] = 255
+            msg = image_msg_from_array(fruit, 'mono8', 'camera_optical', stamp)
+        assembler.on_message({**ROLE, '/camera/instance_mask': 'mask'}[topic], msg)
+    frames = read_transforms(tmp_path).frames
+    assert len(frames) == 3 and read_transforms(tmp_path).mask_source == 'semantic_topic'
+    instances = cv2.imread(str(tmp_path / frames[1].instance_path), cv2.IMREAD_UNCHANGED)
+    assert sorted(np.unique(instances).tolist()) == [0, 1, 2]
+    assert len(set(instances[2:6, 2:6].ravel())) == 1 and instances[3, 3] != instances[14, 24]
+
+
 def test_a_failing_segmenter_drops_the_frame_with_a_log(tmp_path: Path) -> None:
     logs = Logs()
     settings = settings_from_parameters({'min_translation_m': 0.1})
