@@ -128,7 +128,7 @@ def test_instances_from_the_datasets_own_fruit_masks(tmp_path: Path, capsys: pyt
     assert loaded.mask_source == 'semantic'
     assert {p.name: p.read_bytes() for p in (dataset / 'semantics').iterdir()} == semantics   # kept as they were
     scores = score_views(truth, [m.numpy().astype(np.int64) for m in loaded.instance_masks])
-    assert scores.pixel_iou >= 0.93 and scores.f1 >= 0.55, scores   # measured: 0.970, 0.662 (touching apples merge)
+    assert scores.pixel_iou >= 0.93 and scores.f1 >= 0.5, scores   # measured: 0.963, 0.599 (leaves cut fruit)
     assert main(['segment', str(dataset), '--method', 'semantic', '--quiet']) == 2
     _one_line_error(capsys, 'instance masks exist')
     data = json.loads((dataset / 'transforms.json').read_text())

@@ -77,12 +77,6 @@ class SegmenterConfig:
     """Touching fruits are split (distance transform + watershed) when the neck between them is narrower than
     their blob's largest inscribed radius by at least this fraction of it (h-maxima depth); 0 = never split."""
 
-    semantic_split_depth_fraction: float = 0.0
-    """``split_depth_fraction`` for instances split from a dataset's own fruit masks (``fruitnerfpp segment
-    --method semantic``). 0: plain connected blobs. On six synthetic trees (12 views each, GT fruit masks) cutting at
-    necks (0.35) lost instance F1 on every fruit (0.729 -> 0.685 on apples): a fruit a leaf crosses is cut more
-    often than two touching fruits are parted (docs/results/robustness.md)."""
-
     # ---------------------------------------------------------------- learned models (torchscript, sam)
     score_threshold: float = 0.5
     """Masks whose score (model confidence; SAM: predicted IoU) is below this are dropped, in [0, 1]."""
@@ -110,8 +104,7 @@ class SegmenterConfig:
         unit = {'min_saturation': self.min_saturation, 'min_value': self.min_value,
                 'score_threshold': self.score_threshold, 'mask_threshold': self.mask_threshold,
                 'min_fill_ratio': self.min_fill_ratio, 'min_solidity': self.min_solidity,
-                'split_depth_fraction': self.split_depth_fraction,
-                'semantic_split_depth_fraction': self.semantic_split_depth_fraction}
+                'split_depth_fraction': self.split_depth_fraction}
         for name, value in unit.items():
             if not 0.0 <= value <= 1.0:
                 raise ConfigError(f'SegmenterConfig: {name} must be in [0, 1], got {value}')

@@ -1,10 +1,13 @@
 """Instance masks from a dataset's own binary fruit masks (``fruitnerfpp segment DATA_DIR --method semantic``).
 
 Many orchard datasets hold a fruit / not-fruit mask per image and no instances (FruitNeRF's datasets, most semantic
-segmenters' output). Training needs instances: each mask's fruit pixels are split into connected blobs (cut at
-necks, as the built-in segmenter cuts its blobs, when ``semantic_split_depth_fraction`` > 0:
+segmenters' output). Training needs instances: each mask's fruit pixels are split into connected blobs, cut at
+their necks as the built-in segmenter cuts its blobs (``split_depth_fraction``,
 :func:`~fruitnerfpp_ros.core.segmentation.fallback.split_touching`); pieces smaller than ``min_area_for`` are
-dropped. The frame's ``semantic_path`` is kept (the dataset's masks stay what the semantic
+dropped. Cutting loses against plain blobs when the instances are scored in the images (a leaf across a fruit cuts
+it) but wins where it matters, in the count (three synthetic trees: mean F1 0.827 -> 0.874; with the true
+instances 0.983): the field and the count join a fruit's pieces, not two fruits given one id
+(docs/results/robustness.md). The frame's ``semantic_path`` is kept (the dataset's masks stay what the semantic
 field learns); ``instance_path`` names the new ``instances/*.png``; transforms.json is rewritten once at the end
 with ``mask_source: semantic``.
 """
@@ -42,9 +45,9 @@ def fruit_pixels(mask: np.ndarray) -> np.ndarray:
 
 
 def instances_of_mask(fruit: np.ndarray, config: SegmenterConfig = SegmenterConfig()) -> np.ndarray:
-    """[H, W] uint16 instance ids (0 = background) of the bool fruit mask ``fruit``: its blobs (cut at necks by
-    ``config.semantic_split_depth_fraction``), pieces under ``config.min_area_for`` dropped, ids 1..K."""
-    labels = split_touching(fruit, config.semantic_split_depth_fraction)
+    """[H, W] uint16 instance ids (0 = background) of the bool fruit mask ``fruit``: its blobs cut at necks
+    (``config.split_depth_fraction``), pieces under ``config.min_area_for`` dropped, ids 1..K."""
+    labels = split_touching(fruit, config.split_depth_fraction)
     return relabel_sequential(labels, config.min_area_for(*fruit.shape))
 
 

@@ -21,10 +21,10 @@ def test_blobs_are_instances_and_specks_are_dropped() -> None:
     assert {int(ids[12, 12]), int(ids[25, 45])} == {1, 2}
 
 
-def test_touching_fruits_are_cut_at_their_neck_only_when_asked() -> None:
+def test_touching_fruits_are_cut_at_their_neck() -> None:
     pair = _disc((40, 60), (20, 20), 9) | _disc((40, 60), (20, 37), 9)   # two discs overlapping by a narrow neck
-    assert instances_of_mask(pair).max() == 1                                              # the default
-    cut = instances_of_mask(pair, SegmenterConfig(semantic_split_depth_fraction=0.35))
+    assert instances_of_mask(pair, SegmenterConfig(split_depth_fraction=0.0)).max() == 1
+    cut = instances_of_mask(pair)                                                          # the default
     assert cut.max() == 2 and cut[20, 20] != cut[20, 37]
 
 
