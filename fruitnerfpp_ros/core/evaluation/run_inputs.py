@@ -85,9 +85,11 @@ def run_eval_inputs(counts: str | Path, gt: str | Path | None = None, dataset: s
     run_dataset, eval_every = _run_dataset(counts_json.parent)
     dataset_dir = Path(dataset) if dataset is not None else run_dataset
     if gt is None:
-        if dataset_dir is None or not (dataset_dir / GT_FILE).is_file():
-            where = f"the run's dataset {dataset_dir}" if dataset_dir is not None else 'no dataset of the run found'
-            raise EvaluationError(f'give --gt: {where} holds no {GT_FILE}')
+        if dataset_dir is None:
+            raise EvaluationError(f'give --gt ({GT_FILE}): no dataset found for {counts_json} (not in a trained '
+                                  'run whose dataset is at hand; --dataset names one)')
+        if not (dataset_dir / GT_FILE).is_file():
+            raise EvaluationError(f'give --gt: the dataset {dataset_dir} holds no {GT_FILE}')
         gt_json = dataset_dir / GT_FILE
     else:
         gt_json = Path(gt) / GT_FILE if Path(gt).is_dir() else Path(gt)
