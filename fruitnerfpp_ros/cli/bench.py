@@ -48,8 +48,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     acc.add_argument('--preset', choices=PRESET_NAMES, help="training preset (default: the suite's: cpu for quick "
                      'and cpu, default for gpu)')
     acc.add_argument('--masks', choices=MASK_SOURCES, default='gt',
-                     help="instance masks of both counters: gt (the dataset's) or fallback (the built-in segmenter's, "
-                          'as `fruitnerfpp segment`; bag replay: mask_source fallback)')
+                     help="instance masks of both counters: gt (the dataset's), fallback (the built-in segmenter's, "
+                          'as `fruitnerfpp segment`; bag replay: mask_source fallback) or semantic (blobs of the '
+                          'fruit masks, as `fruitnerfpp segment --method semantic`; bag replay: mask_source '
+                          'semantic_topic)')
     acc.add_argument('--jobs', type=int, default=1, help='scenes run at once, one process each (default 1)')
     acc.add_argument('--scenes', metavar='NAME,NAME', help='run only these scenes of the suite')
     acc.add_argument('--config', type=Path, metavar='FILE.yaml',

@@ -152,7 +152,8 @@ class SuiteResult:
         suite: the suite's name.
         scenes: per scene, in suite order.
         preset: training preset.
-        masks: ``gt`` (the dataset's instance masks) or ``fallback`` (the built-in segmenter's).
+        masks: ``gt`` (the dataset's instance masks), ``fallback`` (the built-in segmenter's) or ``semantic``
+            (blobs of the dataset's fruit masks).
         device: torch device asked for.
         jobs: scenes run at once.
         config_file: the ``--config`` file, or ``''``.

@@ -32,7 +32,7 @@ __all__ = ['SuiteOptions', 'run_suite', 'ACCURACY_JSON', 'ACCURACY_MD', 'MASK_SO
 
 ACCURACY_JSON, ACCURACY_MD = 'accuracy.json', 'accuracy.md'
 #: Where the instance masks of both counters come from.
-MASK_SOURCES = ('gt', 'fallback')
+MASK_SOURCES = ('gt', 'fallback', 'semantic')
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,9 @@ class SuiteOptions:
     cluster_config: ClusterConfig
     """The ClusterConfig."""
     masks: str = 'gt'
-    """``gt``: the datasets' instance masks; ``fallback``: the built-in segmenter's (bag replay: ``mask_source``)."""
+    """``gt``: the datasets' instance masks; ``fallback``: the built-in segmenter's (bag replay: ``mask_source``);
+    ``semantic``: blobs of the datasets' fruit masks, as ``fruitnerfpp segment --method semantic`` makes them (bag
+    replay: ``mask_source: semantic_topic``)."""
     device: str = 'auto'
     """Torch device: auto, cpu, cuda, cuda:N."""
     jobs: int = 1

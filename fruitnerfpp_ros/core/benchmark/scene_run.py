@@ -167,7 +167,8 @@ def _bag_parameters(job: SceneJob, config: SynthConfig) -> dict[str, Any]:
     parameters = {'image_topic': image_topic(config.bag_image_format),
                   'compressed_image': config.bag_image_format == 'jpeg', 'world_frame': config.world_frame,
                   'pose_source': job.scene.bag.pose_source, 'preset': job.preset, 'device': job.device,
-                  'config_file': job.config_file, 'mask_source': 'fallback' if job.masks == 'fallback' else 'topic'}
+                  'config_file': job.config_file,
+                  'mask_source': {'fallback': 'fallback', 'semantic': 'semantic_topic'}.get(job.masks, 'topic')}
     return {**parameters, **job.scene.bag.params}
 
 
@@ -245,6 +246,10 @@ def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
         from fruitnerfpp_ros.core.segmentation.dataset_masks import segment_dataset
         with record.timed('segment'):
             segment_dataset(data_dir, build_segmenter(SegmenterConfig(method='fallback')), overwrite=True)
+    if job.masks == 'semantic' and not job.scene.via_bag:  # a bag scene's replay splits its mask topic's blobs
+        from fruitnerfpp_ros.core.segmentation.semantic_instances import instances_from_semantics
+        with record.timed('segment'):
+            instances_from_semantics(data_dir, overwrite=True)
 
     counted_dir = scene_dir / 'run' / 'keyframes' if job.scene.via_bag else data_dir
     with contextlib.ExitStack() as stack:
