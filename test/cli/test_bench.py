@@ -1,5 +1,5 @@
-"""``fruitnerfpp bench accuracy``: one micro scene through the command line (fallback masks, --config, --log), a
-bag scene's replay parameters as a robot user writes them, and one-line errors."""
+"""``fruitnerfpp bench accuracy``: one micro scene through the command line (fallback masks, --config, --log; the
+fruit masks' blobs), a bag scene's replay parameters as a robot user writes them, and one-line errors."""
 
 from __future__ import annotations
 
@@ -41,6 +41,36 @@ def test_micro_scene_with_fallback_masks(tmp_path: Path, monkeypatch: pytest.Mon
     section = log.read_text()
     assert f'--masks fallback --jobs 1 --device cpu --config {config}' in section
     assert (out / 'micro' / 'count.png').is_file()
+
+
+def test_micro_scene_with_blobs_of_the_fruit_masks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    micro = SuiteScene('micro', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'micro')
+    monkeypatch.setattr(bench, 'suite_scenes', lambda suite, names: (micro,))
+    config, out = tmp_path / 'micro.yaml', tmp_path / 'out'
+    config.write_text(MICRO_CONFIG)
+    code = main(['bench', 'accuracy', '--suite', 'quick', '--out', str(out), '--preset', 'tiny', '--masks',
+                 'semantic', '--config', str(config), '--device', 'cpu'])
+    scene = json.loads((out / 'accuracy.json').read_text())['scenes'][0]
+    assert code == 0, scene['error']
+    assert scene['times_s']['segment'] > 0   # the ground-truth instances replaced by the fruit masks' blobs
+    transforms = json.loads((out / 'micro' / 'data' / 'transforms.json').read_text())
+    assert transforms['mask_source'] == 'semantic'
+    assert 'masks semantic' in capsys.readouterr().out
+
+
+def test_a_bag_scene_replays_with_the_mask_source_of_its_masks(tmp_path: Path) -> None:
+    from fruitnerfpp_ros.core.benchmark.scene_run import SceneJob, _bag_parameters
+    from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    from fruitnerfpp_ros.core.export.config import ExportConfig
+    from fruitnerfpp_ros.core.training import TrainConfig
+
+    scene = SuiteScene('bag', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'bag',
+                       via_bag=True)
+    sources = {masks: _bag_parameters(SceneJob(scene, tmp_path, masks, 'cpu', 'tiny', TrainConfig.preset('tiny'),
+                                               ExportConfig(), ClusterConfig()), scene.synth_config('cpu'))
+               ['mask_source'] for masks in ('gt', 'fallback', 'semantic')}
+    assert sources == {'gt': 'topic', 'fallback': 'fallback', 'semantic': 'semantic_topic'}
 
 
 def test_bag_scene_replays_with_the_recordings_topics_and_frame(tmp_path: Path) -> None:

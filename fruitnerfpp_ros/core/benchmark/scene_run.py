@@ -81,7 +81,8 @@ class SceneJob:
     out_dir: Path
     """The suite's output directory (the scene writes into ``out_dir/<name>``, replacing what was there)."""
     masks: str
-    """``gt``: the dataset's instance masks; ``fallback``: the built-in segmenter's, for both counters."""
+    """``gt``: the dataset's instance masks; ``fallback``: the built-in segmenter's; ``semantic``: blobs of the
+    fruit masks (for both counters)."""
     device: str
     """Torch device for rendering and training."""
     preset: str
