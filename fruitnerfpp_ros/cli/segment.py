@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         bar.refresh()
 
     try:
-        if segmenter is None:
+        if semantic:
             from fruitnerfpp_ros.core.segmentation.semantic_instances import instances_from_semantics
             summary = instances_from_semantics(args.dataset, config, overwrite=args.overwrite, progress=on_progress)
         else:

@@ -151,13 +151,11 @@ def scored_ground_truth(gt_path: Path, counted_dir: Path, run_dir: Path, default
     ``counted_dir``: the dataset the run trained on (a bag scene's keyframes); the held-out views are every
     ``data.eval_every``-th of the run's config.yaml, else ``default_eval_every``.
     """
-    from fruitnerfpp_ros.core.config_io import load_config
     from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
-    from fruitnerfpp_ros.core.pipeline import training_views  # torch: in the scene's process only
-    from fruitnerfpp_ros.core.training import RunDir, TrainConfig
+    from fruitnerfpp_ros.core.evaluation.run_inputs import run_eval_every  # torch: in the scene's process only
+    from fruitnerfpp_ros.core.pipeline import training_views
 
-    path = RunDir(run_dir).config_path
-    eval_every = load_config(TrainConfig, path).data.eval_every if path.is_file() else default_eval_every
+    eval_every = run_eval_every(run_dir, default_eval_every)
     return load_ground_truth(gt_path, train_views=training_views(counted_dir, eval_every, gt_path))
 
 

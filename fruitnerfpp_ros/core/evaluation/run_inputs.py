@@ -14,12 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
+from fruitnerfpp_ros.core.pipeline import COUNTS_JSON, GT_JSON, training_views
 from fruitnerfpp_ros.errors import EvaluationError
 
-__all__ = ['RunEvalInputs', 'run_eval_inputs', 'GT_FILE', 'COUNTS_FILE']
-
-#: The ground truth's file name in a synthetic dataset, and a run's count.
-GT_FILE, COUNTS_FILE = 'gt_fruits.json', 'counts.json'
+__all__ = ['RunEvalInputs', 'run_eval_inputs', 'run_eval_every']
 
 
 @dataclass(frozen=True)
@@ -41,9 +39,9 @@ class RunEvalInputs:
 
 def _counts_file(counts: Path) -> Path:
     if counts.is_dir():
-        found = counts / COUNTS_FILE
+        found = counts / COUNTS_JSON
         if not found.is_file():
-            raise EvaluationError(f'{counts}: no {COUNTS_FILE} in this directory; count the run first '
+            raise EvaluationError(f'{counts}: no {COUNTS_JSON} in this directory; count the run first '
                                   f'(`fruitnerfpp count {counts}`)')
         return found
     if not counts.is_file():
@@ -51,21 +49,28 @@ def _counts_file(counts: Path) -> Path:
     return counts
 
 
-def _run_dataset(run_dir: Path) -> tuple[Path | None, int | None]:
-    """(the dataset the run in ``run_dir`` trained on, its held-out spacing ``data.eval_every``); (None, None)
-    when ``run_dir`` holds no readable training run."""
+def run_eval_every(run_dir: Path, default: int) -> int:
+    """The held-out spacing ``data.eval_every`` of the run in ``run_dir`` (its config.yaml), else ``default``."""
+    from fruitnerfpp_ros.core.config_io import load_config
+    from fruitnerfpp_ros.core.training import RunDir, TrainConfig
+
+    path = RunDir(run_dir).config_path
+    return load_config(TrainConfig, path).data.eval_every if path.is_file() else default
+
+
+def _run_dataset(run_dir: Path) -> Path | None:
+    """The dataset the run in ``run_dir`` trained on (its checkpoint names it); None without a readable run."""
     from fruitnerfpp_ros.core.training import RunDir
     from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint
     from fruitnerfpp_ros.errors import CheckpointError
 
     run = RunDir(run_dir)
     if not run.latest_checkpoint.is_file():
-        return None, None
+        return None
     try:
-        state = load_checkpoint(run.latest_checkpoint)
-        return run.find_dataset(state), int(state['config']['data']['eval_every'])
-    except (CheckpointError, KeyError, TypeError, ValueError):
-        return None, None
+        return run.find_dataset(load_checkpoint(run.latest_checkpoint))
+    except (CheckpointError, KeyError, TypeError):
+        return None
 
 
 def run_eval_inputs(counts: str | Path, gt: str | Path | None = None, dataset: str | Path | None = None,
@@ -82,20 +87,17 @@ def run_eval_inputs(counts: str | Path, gt: str | Path | None = None, dataset: s
         EvaluationError: no counts file; no ground truth given and none beside the run's dataset.
     """
     counts_json = _counts_file(Path(counts))
-    run_dataset, eval_every = _run_dataset(counts_json.parent)
-    dataset_dir = Path(dataset) if dataset is not None else run_dataset
+    dataset_dir = Path(dataset) if dataset is not None else _run_dataset(counts_json.parent)
     if gt is None:
         if dataset_dir is None:
-            raise EvaluationError(f'give --gt ({GT_FILE}): no dataset found for {counts_json} (not in a trained '
+            raise EvaluationError(f'give --gt ({GT_JSON}): no dataset found for {counts_json} (not in a trained '
                                   'run whose dataset is at hand; --dataset names one)')
-        if not (dataset_dir / GT_FILE).is_file():
-            raise EvaluationError(f'give --gt: the dataset {dataset_dir} holds no {GT_FILE}')
-        gt_json = dataset_dir / GT_FILE
+        if not (dataset_dir / GT_JSON).is_file():
+            raise EvaluationError(f'give --gt: the dataset {dataset_dir} holds no {GT_JSON}')
+        gt_json = dataset_dir / GT_JSON
     else:
-        gt_json = Path(gt) / GT_FILE if Path(gt).is_dir() else Path(gt)
+        gt_json = Path(gt) / GT_JSON if Path(gt).is_dir() else Path(gt)
     train_views = None
     if dataset_dir is not None and (dataset_dir / 'transforms.json').is_file():
-        from fruitnerfpp_ros.core.pipeline import training_views  # torch: imported only when a dataset is scored
-
-        train_views = training_views(dataset_dir, eval_every or default_eval_every, gt_json)
+        train_views = training_views(dataset_dir, run_eval_every(counts_json.parent, default_eval_every), gt_json)
     return RunEvalInputs(counts_json, gt_json, dataset_dir, train_views)

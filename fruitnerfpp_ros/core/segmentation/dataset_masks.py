@@ -12,18 +12,19 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path, PurePosixPath
+from typing import Callable
 
 import cv2
 import numpy as np
 
 from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_uint16_png
-from fruitnerfpp_ros.core.data.transforms_format import MASK_SOURCE_KEY, TransformsFile, read_transforms, \
-    write_transforms
+from fruitnerfpp_ros.core.data.transforms_format import MASK_SOURCE_KEY, FrameEntry, TransformsFile, \
+    read_transforms, write_transforms
 from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
 from fruitnerfpp_ros.core.segmentation.segmenter import Segmenter, segment
 from fruitnerfpp_ros.errors import DatasetError, SegmentationError
 
-__all__ = ['SegmentationSummary', 'mask_paths_for', 'check_no_masks', 'segment_dataset']
+__all__ = ['SegmentationSummary', 'mask_paths_for', 'check_no_masks', 'segment_dataset', 'record_instances']
 
 
 @dataclass(frozen=True)
@@ -124,25 +125,43 @@ def segment_dataset(dataset_dir: str | Path, segmenter: Segmenter, *, overwrite:
     start = time.perf_counter()
     dataset_dir = Path(dataset_dir)
     transforms = read_transforms(dataset_dir)
-    frames = transforms.frames
-    targets = _targets(dataset_dir, transforms)
     if not overwrite:
         check_no_masks(dataset_dir, transforms)
+
+    def ids_of(frame: FrameEntry) -> np.ndarray:
+        return segment(segmenter, _read_rgb8(dataset_dir / frame.file_path), frame.file_path)
+
+    return record_instances(dataset_dir, transforms, ids_of, semantics=True, progress=progress, started=start,
+                            mask_source=mask_source or getattr(segmenter, 'method', None))
+
+
+def record_instances(dataset_dir: Path, transforms: TransformsFile, ids_of: Callable[[FrameEntry], np.ndarray], *,
+                     semantics: bool, mask_source: str | None, progress: ProgressCallback = ignore_progress,
+                     started: float | None = None) -> SegmentationSummary:
+    """Write each frame's instance ids ``ids_of(frame)`` to ``instances/`` (with ``semantics``, the fruit mask
+    to ``semantics/`` too), name them in its frame and rewrite transforms.json once at the end with ``mask_source``
+    (None: the key left out; the old masks' source no longer holds).
+
+    Raises:
+        DatasetError: two images whose masks would share a file; what ``ids_of`` raises.
+    """
+    started = time.perf_counter() if started is None else started
+    frames = transforms.frames
     new_frames, n_instances, empty = [], 0, 0
-    for index, (frame, (instance_path, semantic_path)) in enumerate(zip(frames, targets)):
-        rgb = _read_rgb8(dataset_dir / frame.file_path)
-        ids = segment(segmenter, rgb, frame.file_path)
+    for index, (frame, (instance_path, semantic_path)) in enumerate(zip(frames, _targets(dataset_dir, transforms))):
+        ids = ids_of(frame)
         write_uint16_png(dataset_dir / instance_path, ids)
-        write_mask_png(dataset_dir / semantic_path, ids > 0)
+        if semantics:
+            write_mask_png(dataset_dir / semantic_path, ids > 0)
         k = int(ids.max()) if ids.size else 0
         n_instances += k
         empty += int(k == 0)
-        new_frames.append(replace(frame, instance_path=instance_path, semantic_path=semantic_path))
+        new_frames.append(replace(frame, instance_path=instance_path,
+                                  semantic_path=semantic_path if semantics else frame.semantic_path))
         progress(ProgressEvent(Phase.SEGMENT, index + 1, len(frames), f'{k} fruits'))
     transforms.frames = new_frames
-    source = mask_source or getattr(segmenter, 'method', None)
-    transforms.extra.pop(MASK_SOURCE_KEY, None)         # the old masks' source no longer holds
-    if source:
-        transforms.extra[MASK_SOURCE_KEY] = str(source)
+    transforms.extra.pop(MASK_SOURCE_KEY, None)
+    if mask_source:
+        transforms.extra[MASK_SOURCE_KEY] = str(mask_source)
     write_transforms(dataset_dir, transforms)
-    return SegmentationSummary(dataset_dir, len(frames), n_instances, empty, time.perf_counter() - start)
+    return SegmentationSummary(dataset_dir, len(frames), n_instances, empty, time.perf_counter() - started)

@@ -15,17 +15,15 @@ with ``mask_source: semantic``.
 from __future__ import annotations
 
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from fruitnerfpp_ros.core.data.png_io import write_uint16_png
-from fruitnerfpp_ros.core.data.transforms_format import MASK_SOURCE_KEY, read_transforms, write_transforms
-from fruitnerfpp_ros.core.progress import Phase, ProgressCallback, ProgressEvent, ignore_progress
+from fruitnerfpp_ros.core.data.transforms_format import FrameEntry, read_transforms
+from fruitnerfpp_ros.core.progress import ProgressCallback, ignore_progress
 from fruitnerfpp_ros.core.segmentation.config import SegmenterConfig
-from fruitnerfpp_ros.core.segmentation.dataset_masks import SegmentationSummary, mask_paths_for
+from fruitnerfpp_ros.core.segmentation.dataset_masks import SegmentationSummary, mask_paths_for, record_instances
 from fruitnerfpp_ros.core.segmentation.fallback import split_touching
 from fruitnerfpp_ros.core.segmentation.instance_maps import relabel_sequential
 from fruitnerfpp_ros.errors import DatasetError, SegmentationError
@@ -69,27 +67,19 @@ def instances_from_semantics(dataset_dir: str | Path, config: SegmenterConfig = 
     if lacking:
         raise DatasetError(f'{dataset_dir}: {len(lacking)} of {len(frames)} frames have no semantic_path (first: '
                            f'{lacking[0]}); --method semantic splits the dataset\'s own fruit masks into instances')
-    targets = [mask_paths_for(f.file_path)[0] for f in frames]
     if not overwrite:
-        taken = [p for f, target in zip(frames, targets) for p in (f.instance_path, target)
+        taken = [p for f in frames for p in (f.instance_path, mask_paths_for(f.file_path)[0])
                  if p is not None and (dataset_dir / p).exists()]
         if taken:
             raise SegmentationError(f'{dataset_dir}: instance masks exist (first: {taken[0]}); pass --overwrite '
                                     '(overwrite=True) to replace them')
-    new_frames, n_instances, empty = [], 0, 0
-    for index, (frame, instance_path) in enumerate(zip(frames, targets)):
+
+    def ids_of(frame: FrameEntry) -> np.ndarray:
         path = dataset_dir / str(frame.semantic_path)
         mask = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
         if mask is None:
             raise DatasetError(f'{path}: semantic mask not found or not decodable')
-        ids = instances_of_mask(fruit_pixels(mask), config)
-        write_uint16_png(dataset_dir / instance_path, ids)
-        k = int(ids.max()) if ids.size else 0
-        n_instances += k
-        empty += int(k == 0)
-        new_frames.append(replace(frame, instance_path=instance_path))
-        progress(ProgressEvent(Phase.SEGMENT, index + 1, len(frames), f'{k} fruits'))
-    transforms.frames = new_frames
-    transforms.extra[MASK_SOURCE_KEY] = SEMANTIC_SOURCE
-    write_transforms(dataset_dir, transforms)
-    return SegmentationSummary(dataset_dir, len(frames), n_instances, empty, time.perf_counter() - start)
+        return instances_of_mask(fruit_pixels(mask), config)
+
+    return record_instances(dataset_dir, transforms, ids_of, semantics=False, mask_source=SEMANTIC_SOURCE,
+                            progress=progress, started=start)

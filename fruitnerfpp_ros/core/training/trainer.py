@@ -263,9 +263,9 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     run = RunDir(run_dir)
     config, state = _resolved_config(run, config, resume)
     dataset = load_dataset(dataset_dir, eval_every=config.data.eval_every)
-    if state is not None and run.find_dataset(state).resolve() != Path(dataset_dir).resolve():
-        log.warning('resume: dataset %s differs from the one the run started with (%s)', dataset_dir,
-                    run.find_dataset(state))
+    started_on = None if state is None else run.find_dataset(state)
+    if started_on is not None and started_on.resolve() != Path(dataset_dir).resolve():
+        log.warning('resume: dataset %s differs from the one the run started with (%s)', dataset_dir, started_on)
     start = None
     if state is not None:
         aabb, scale = np.asarray(state['aabb']), scale_from_json(state['scale'])
