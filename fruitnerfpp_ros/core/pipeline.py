@@ -217,6 +217,7 @@ class RunViews:
     masks: MaskViews
     fruit_diameter_m: float
     aabb: np.ndarray
+    units_per_metre: float = 1.0     # the poses' units in a metre (``SceneScale.units_per_metre``)
 
 
 def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *, device: str = 'cpu',
@@ -238,7 +239,7 @@ def load_run_views(run_dir: str | Path, dataset_dir: str | Path | None = None, *
     poses = scene.poses(dataset.T_world_camera).detach().cpu().double().numpy()
     masks = MaskViews(dataset.instance_masks.numpy(), dataset.intrinsics.double().numpy(), poses,
                       dataset.train_indices.numpy(), dataset.mask_source)
-    return RunViews(masks, scene.fruit_diameter_m, np.asarray(scene.aabb, np.float64))
+    return RunViews(masks, scene.fruit_diameter_m, np.asarray(scene.aabb, np.float64), scene.scale.units_per_metre)
 
 
 def count_run(source: str | Path, cluster_config: ClusterConfig | None = None, *, out: str | Path | None = None,
@@ -290,7 +291,9 @@ def count_with_views(cloud: FruitPointCloud, config: ClusterConfig, views: RunVi
     points = None
     if config.masks.split_merges:  # the cut needs the points and the same moved to their fruits' centres
         points = (np.asarray(cloud.xyz, np.float64), np.asarray(centre_positions(cloud, config), np.float64))
-    return count_with_masks(count, views.masks, views.fruit_diameter_m, views.aabb, config.masks, points)
+    masks = dataclasses.replace(  # its camera distance in metres, in the poses' units
+        config.masks, min_camera_distance_m=config.masks.min_camera_distance_m * views.units_per_metre)
+    return count_with_masks(count, views.masks, views.fruit_diameter_m, views.aabb, masks, points)
 
 
 def count_cloud(cloud: FruitPointCloud, cluster_config: ClusterConfig | None, *, cloud_path: Path,

@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import numpy as np
 import torch
@@ -47,7 +47,15 @@ class ScaleConfig:
     fruit_diameter_m: float | None = None
     """A known fruit diameter (m) to use as it is; None = measured from the masks and poses."""
     diameter_range_m: tuple[float, float] = (0.02, 0.25)
-    """A measured diameter is clamped into this range (m); outside it the measurement is not trusted."""
+    """The fruit diameters (m) a measurement in metres can give; see ``outside_range``."""
+    outside_range: Literal['pose_units', 'clamp'] = 'pose_units'
+    """A measured diameter outside ``diameter_range_m``: ``pose_units`` takes the poses to be in other units than
+    metres (a COLMAP or nerfstudio reconstruction, a scene modelled in centimetres) and uses the measurement as it
+    is: every length of the method follows the fruit size in the poses' units, and the few lengths given in metres
+    (``data.box_margin_m``, ``render.near``, ...) are converted with ``default_diameter_m`` as the fruit's size in
+    metres (``SceneScale.units_per_metre``). ``clamp`` uses the range's nearer end (the poses are in metres and the
+    measurement is off). A 30-apple tree with its poses in units of 20 m / 5 m / 20 cm / 5 cm: ``clamp`` F1 0.18 /
+    0.97 / 1.00 / 0.60, ``pose_units`` 1.00 every time (docs/results/robustness.md)."""
     default_diameter_m: float = 0.07
     """Used when nothing can be measured (too few fruit voxels or masks), with a warning in the result."""
     coarse_resolution: int = 64
@@ -94,6 +102,8 @@ class ScaleConfig:
         lo, hi = self.diameter_range_m
         if not 0 < lo < hi:
             raise ConfigError(f'scale.diameter_range_m must be 0 < min < max, got {self.diameter_range_m}')
+        if self.outside_range not in ('pose_units', 'clamp'):
+            raise ConfigError(f'scale.outside_range must be pose_units or clamp, not {self.outside_range!r}')
         if self.fruit_diameter_m is not None and not lo <= self.fruit_diameter_m <= hi:
             raise ConfigError(f'scale.fruit_diameter_m {self.fruit_diameter_m} is outside diameter_range_m '
                               f'{self.diameter_range_m}')
@@ -114,11 +124,15 @@ class SceneScale(NamedTuple):
 
     Attributes:
         fruit_diameter_m: the fruit diameter every length of the method follows from.
-        source: ``config`` (given), ``masks`` (measured), ``clamped`` (measured outside ``diameter_range_m``: the
-            range's end is used) or ``default`` (nothing measurable).
+        source: ``config`` (given), ``masks`` (measured), ``pose_units`` (measured outside ``diameter_range_m``
+            and used as it is: the poses are not in metres), ``clamped`` (measured outside it, the range's end used:
+            ``ScaleConfig.outside_range: clamp``) or ``default`` (nothing measurable).
         fruit_region: [2, 3] box (m) around the fruit voxels, or None when none was found.
         n_fruit_voxels: fruit voxels of the fine vote.
         n_masks_measured: masks whose diameter entered the estimate.
+        units_per_metre: the poses' units in a metre: 1 for poses in metres; for ``pose_units`` the measured
+            diameter over ``ScaleConfig.default_diameter_m`` (the lengths the config gives in metres are multiplied
+            by it). ``fruit_diameter_m`` and ``fruit_region`` are in the poses' units.
     """
 
     fruit_diameter_m: float
@@ -126,11 +140,13 @@ class SceneScale(NamedTuple):
     fruit_region: np.ndarray | None
     n_fruit_voxels: int
     n_masks_measured: int
+    units_per_metre: float = 1.0
 
     def to_json(self) -> dict:
         return {'fruit_diameter_m': round(self.fruit_diameter_m, 5), 'source': self.source,
                 'fruit_region': None if self.fruit_region is None else np.round(self.fruit_region, 4).tolist(),
-                'n_fruit_voxels': self.n_fruit_voxels, 'n_masks_measured': self.n_masks_measured}
+                'n_fruit_voxels': self.n_fruit_voxels, 'n_masks_measured': self.n_masks_measured,
+                'units_per_metre': round(self.units_per_metre, 6)}
 
 
 class FruitVotes(NamedTuple):
@@ -320,14 +336,20 @@ def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: 
             region = _region(fine.centres[held], fine.voxel)
             diameters = _mask_diameters(dataset, views, fine.centres[fruit], config.min_mask_pixels)
     lo, hi = config.diameter_range_m
+    units_per_metre = 1.0
     if config.fruit_diameter_m is not None:
         diameter, source = float(config.fruit_diameter_m), 'config'
     elif len(diameters) < 3:
         diameter, source = float(config.default_diameter_m), 'default'
     else:
-        measured = float(np.percentile(diameters, config.diameter_percentile))
-        diameter = float(np.clip(measured, lo, hi))
-        source = 'masks' if diameter == measured else 'clamped'
+        diameter = float(np.percentile(diameters, config.diameter_percentile))
+        if lo <= diameter <= hi:
+            source = 'masks'
+        elif config.outside_range == 'clamp':
+            diameter, source = float(np.clip(diameter, lo, hi)), 'clamped'
+        else:
+            source, units_per_metre = 'pose_units', diameter / config.default_diameter_m
     if region is not None:  # its percentiles cut the fruit at the crown's edges: the region holds them whole
         region = region + np.array([[-diameter], [diameter]])
-    return SceneScale(diameter, source, region, n_fruit, 0 if source == 'config' else len(diameters))
+    return SceneScale(diameter, source, region, n_fruit, 0 if source == 'config' else len(diameters),
+                      units_per_metre)

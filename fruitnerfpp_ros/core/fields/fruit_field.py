@@ -187,7 +187,8 @@ class FruitField(nn.Module):
             return background
         # rays detached: the far field's points lie up to hundreds of metres out, where a pose's rotation moves
         # them by metres; the camera poses are refined from the box alone
-        t, length = far_sample_distances(t_exit.detach(), self.far.config.samples, jitter)
+        t, length = far_sample_distances(t_exit.detach(), self.far.config.samples, jitter,
+                                         self.far.config.units_per_metre)
         points = rays.origins.detach()[:, None, :] + t[..., None] * rays.directions.detach()[:, None, :]
         density, colour = self.far(2.0 * self.normalize(points.reshape(-1, 3)) - 1.0)
         # optical depth per interval capped where it is opaque anyway (the unbounded last one would overflow)

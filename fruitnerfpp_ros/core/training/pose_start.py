@@ -30,7 +30,7 @@ from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
 from fruitnerfpp_ros.core.training.scene_box import measure_scene
 
 __all__ = ['PoseStart', 'start_poses', 'aligned_poses', 'refinement_after', 'corrected_poses', 'with_transform',
-           'pose_start_lines', 'POSE_ALIGNMENT_JSON', 'PASS_REGISTRATION_JSON']
+           'lengths_in_pose_units', 'pose_start_lines', 'POSE_ALIGNMENT_JSON', 'PASS_REGISTRATION_JSON']
 
 log = logging.getLogger(__name__)
 
@@ -119,6 +119,22 @@ class PoseStart:
     registration: PassRegistration | None
 
 
+def lengths_in_pose_units(config: TrainConfig, units_per_metre: float) -> TrainConfig:
+    """``config`` with what it gives in metres, and the run uses after the scene measurement, in the poses' units
+    (``SceneScale.units_per_metre``): the marching's ``render.near``, the pass registration's ``max_shift_m``, the
+    distortion loss's weight (the loss is a length: per metre) and the far field's density (per metre). The scene
+    box's ``data.box_margin_m`` is converted where the box is built."""
+    if units_per_metre == 1.0:
+        return config
+    u = units_per_metre
+    geometry = dataclasses.replace(config.geometry, distortion_weight=config.geometry.distortion_weight / u)
+    shift = tuple(float(v) * u for v in config.pass_registration.max_shift_m)
+    field = dataclasses.replace(config.field, far_field=dataclasses.replace(config.field.far_field, units_per_metre=u))
+    return dataclasses.replace(
+        config, render=dataclasses.replace(config.render, near=config.render.near * u), geometry=geometry,
+        field=field, pass_registration=dataclasses.replace(config.pass_registration, max_shift_m=shift))
+
+
 def start_poses(dataset: SceneDataset, config: TrainConfig, device: torch.device) -> PoseStart:
     """Align the poses, measure the scene, register the passes (measuring again when they moved); see above."""
     alignment = aligned_poses(dataset, config)
@@ -126,6 +142,7 @@ def start_poses(dataset: SceneDataset, config: TrainConfig, device: torch.device
     posed = dataset if correction is None else dataclasses.replace(
         dataset, T_world_camera=corrected_poses(dataset, correction))
     aabb, scale = measure_scene(posed, config, device)
+    config = lengths_in_pose_units(config, scale.units_per_metre)
     registration = None
     if config.pass_registration.enabled:
         registration = register_passes(posed, aabb, scale.fruit_diameter_m, config.pass_registration, config.scale,

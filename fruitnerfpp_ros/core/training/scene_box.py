@@ -56,6 +56,7 @@ def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
     margin = config.data.box_margin_m
     if margin is None or scale.fruit_region is None:
         return box
+    margin *= scale.units_per_metre   # metres, in the poses' units
     region = scale.fruit_region
     if config.data.box_around == 'fruit':  # every axis; the far field holds the rest
         box = np.stack([np.maximum(box[0], region[0] - margin), np.minimum(box[1], region[1] + margin)])

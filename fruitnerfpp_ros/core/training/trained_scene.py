@@ -34,7 +34,7 @@ def scale_from_json(data: dict) -> SceneScale:
     region = data.get('fruit_region')
     return SceneScale(float(data['fruit_diameter_m']), str(data['source']),
                       None if region is None else np.asarray(region, np.float64), int(data['n_fruit_voxels']),
-                      int(data['n_masks_measured']))
+                      int(data['n_masks_measured']), float(data.get('units_per_metre', 1.0)))
 
 
 @dataclass(frozen=True)

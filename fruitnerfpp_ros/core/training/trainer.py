@@ -277,6 +277,12 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     save_config(config, run.config_path)
     atomic_write_text(run.root / SCALE_JSON, json.dumps({**scale.to_json(), 'aabb': np.round(aabb, 4).tolist()},
                                                         indent=1))
+    if scale.source == 'pose_units':
+        log.warning('the fruit measured from the masks and poses is %.4g pose units across, outside '
+                    'scale.diameter_range_m for metres: the poses are taken to be in other units (about %.4g to a '
+                    'metre, by scale.default_diameter_m); every length follows the fruit size, and the outputs are '
+                    'in the poses\' units. Set scale.outside_range: clamp if the poses are in metres',
+                    scale.fruit_diameter_m, scale.units_per_metre)
     if scale.source == 'clamped':
         log.warning('the fruit measured from the masks and poses is outside scale.diameter_range_m; using %.3f m: '
                     'are the poses in metres (a COLMAP reconstruction is not)? Every length of the pipeline follows '

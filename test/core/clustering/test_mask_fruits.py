@@ -132,3 +132,27 @@ def test_rays_paired_a_block_at_a_time_meet_where_all_at_once_do(views: MaskView
     assert len(rays) >= 10
     whole = _pair_points(rays, 0.5 * DIAMETER, 0.1, chunk_pairs=10 ** 8)
     assert len(whole) >= 10 and np.array_equal(_pair_points(rays, 0.5 * DIAMETER, 0.1, chunk_pairs=5), whole)
+
+
+@pytest.mark.parametrize('units', [0.02, 1.0, 50.0])
+def test_the_masks_fruit_are_found_alike_whatever_the_poses_units(views: MaskViews, units: float) -> None:
+    """The same scene with its poses in units of 50 m / 1 m / 2 cm (the masks are the same pictures): the count of a
+    run in those units (``RunViews.units_per_metre``) completes an empty cloud's count with all five fruits where
+    they hang. Without the conversion the 0.1 m camera distance is 5 pose units away (nothing found at 0.02) and
+    the run's fruit size is all that scales."""
+    from fruitnerfpp_ros.core.export.point_cloud import FruitPointCloud
+    from fruitnerfpp_ros.core.pipeline import RunViews, count_with_views
+
+    poses = views.T_world_camera.copy()
+    poses[:, :3, 3] *= units
+    scaled = dataclasses.replace(views, T_world_camera=poses)
+    cloud = FruitPointCloud.empty(8, fruit_diameter_m=DIAMETER * units)
+    run = RunViews(scaled, DIAMETER * units, np.array([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]]) * units,
+                   units_per_metre=units * DIAMETER / 0.07)
+    result = count_with_views(cloud, ClusterConfig(), run)
+    assert result.count == len(FRUITS), result.stats
+    error = np.linalg.norm(result.centers()[:, None] / units - FRUITS[None], axis=-1).min(1)
+    assert np.all(error < 0.25 * DIAMETER), error
+    if units < 1:
+        unconverted = count_with_views(cloud, ClusterConfig(), dataclasses.replace(run, units_per_metre=1.0))
+        assert unconverted.count == 0

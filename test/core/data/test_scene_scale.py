@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -52,16 +53,29 @@ def test_the_same_spheres_measure_alike_however_far_the_cameras_stand(tmp_path: 
     assert 1.4 * radii.mean() < measured[0] < 2.6 * radii.mean()
 
 
-def test_a_measurement_outside_the_range_is_marked_clamped(tmp_path: Path) -> None:
-    """Poses not in metres (a COLMAP reconstruction) measure the fruit outside the range: the range's end is used,
-    and the scale says so (the trainer warns)."""
+@pytest.mark.parametrize('units', [0.05, 20.0])   # a pose unit of 20 m, of 5 cm
+def test_poses_in_other_units_than_metres_measure_the_fruit_in_those_units(tmp_path: Path, units: float) -> None:
+    """Poses not in metres (a COLMAP reconstruction, a scene modelled in centimetres) measure the fruit outside the
+    metric range: the measurement is used as it is (every length follows it), and the scale says how many pose
+    units make a metre; ``outside_range: clamp`` uses the range's end instead."""
     scene = make_sphere_scene(tmp_path / 's', views=20, size=64, fruits=8)
     dataset = load_dataset(scene, eval_every=0)
-    measured = estimate_scene_scale(dataset, _search_box(dataset))
-    assert measured.source == 'masks'
-    d = measured.fruit_diameter_m
-    clamped = estimate_scene_scale(dataset, _search_box(dataset), ScaleConfig(diameter_range_m=(d / 4, d / 2)))
-    assert clamped.source == 'clamped' and clamped.fruit_diameter_m == pytest.approx(d / 2)
+    metric = estimate_scene_scale(dataset, _search_box(dataset))
+    assert metric.source == 'masks' and metric.units_per_metre == 1.0
+    poses = dataset.T_world_camera.clone()
+    poses[:, :3, 3] *= units
+    scaled = dataclasses.replace(dataset, T_world_camera=poses)
+    other = estimate_scene_scale(scaled, _search_box(scaled))
+    assert other.source == 'pose_units'
+    assert other.fruit_diameter_m == pytest.approx(units * metric.fruit_diameter_m, rel=0.1)
+    assert other.units_per_metre == pytest.approx(other.fruit_diameter_m / ScaleConfig().default_diameter_m)
+    np.testing.assert_allclose(other.fruit_region, units * metric.fruit_region, atol=0.15 * units)
+    assert json.loads(json.dumps(other.to_json()))['units_per_metre'] == pytest.approx(other.units_per_metre, 1e-4)
+    clamped = estimate_scene_scale(scaled, _search_box(scaled), ScaleConfig(outside_range='clamp'))
+    assert clamped.source == 'clamped' and clamped.units_per_metre == 1.0
+    assert clamped.fruit_diameter_m == (0.02 if units < 1 else 0.25)
+    with pytest.raises(ConfigError, match='outside_range must be pose_units or clamp'):
+        ScaleConfig(outside_range='metres')
 
 
 def test_a_given_diameter_is_used_and_nothing_measurable_falls_back(tmp_path: Path) -> None:

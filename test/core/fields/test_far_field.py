@@ -164,3 +164,26 @@ def test_rays_past_far_field_rays_see_the_background_behind_the_box(autograd: bo
     assert torch.allclose(split[:20], every[:20], atol=1e-5)
     assert torch.allclose(split[20:], background, atol=1e-3)
     assert not torch.allclose(every[20:], background, atol=0.1)  # the far field (red) there when all rays see it
+
+
+def test_the_far_field_sees_the_same_in_any_pose_units() -> None:
+    """A scene in units of 5 cm (everything 20x the metric lengths, ``units_per_metre`` 20) shows the same colours
+    beyond its box as in metres; with the far field's density per pose unit instead, they differ."""
+    def far_rgb(units: float, units_per_metre: float) -> torch.Tensor:
+        config = dataclasses.replace(SMALL, far_field=dataclasses.replace(SMALL.far_field,
+                                                                          units_per_metre=units_per_metre))
+        field = FruitField(config, (AABB * units).numpy(), FRUIT_M * units, generator=torch.Generator().manual_seed(5))
+        generator = torch.Generator().manual_seed(6)
+        with torch.no_grad():   # a far field whose density and colour vary over space, as a trained one's do
+            for parameter in field.far.parameters():
+                parameter.copy_(torch.randn(parameter.shape, generator=generator))
+            rays = _outward_rays()
+            t_exit = torch.linspace(1.05, 1.4, len(rays.origins)) * units
+            return field.beyond_box_rgb(RayBundle(rays.origins * units, rays.directions), t_exit)
+
+    metric = far_rgb(1.0, 1.0)
+    assert float(metric.std(0).max()) > 0.005                    # the far field's colours vary over the rays
+    torch.testing.assert_close(far_rgb(20.0, 20.0), metric, atol=1e-4, rtol=1e-4)
+    assert float((far_rgb(20.0, 1.0) - metric).abs().max()) > 0.01
+    with pytest.raises(ConfigError, match='units_per_metre must be > 0'):
+        FarFieldConfig(units_per_metre=0.0)

@@ -56,3 +56,23 @@ def test_a_box_around_the_fruit_is_cut_on_every_axis_and_leaves_the_cameras_out(
     for legal in ({'data': {'box_around': 'fruit_and_cameras'}}, {'data': {'aabb': [0, 0, 0, 1, 1, 1]}}):
         config = replace_nested(TrainConfig(), {**legal, 'field': {'far_field': {'samples': 0}}})
         assert not config.field.far_field.enabled
+
+
+def test_the_margin_given_in_metres_is_converted_to_the_poses_units() -> None:
+    """Poses in units of 10 cm (``units_per_metre`` 10): the 0.5 m margin is 5 units; the marching's near plane,
+    the pass registration's shifts, the distortion loss's weight (per metre) and the far field's density are
+    converted with it."""
+    from fruitnerfpp_ros.core.training.pose_start import lengths_in_pose_units
+
+    in_tenths = SceneScale(0.75, 'pose_units', REGION * 10, 500, 300, units_per_metre=10.0)
+    box = build_scene_box(TrainConfig(), CAMERA_BOX * 10, in_tenths)
+    np.testing.assert_allclose(box, [REGION[0] * 10 - 5.0, REGION[1] * 10 + 5.0])
+    config = TrainConfig()
+    converted = lengths_in_pose_units(config, 10.0)
+    assert converted.render.near == pytest.approx(10 * config.render.near)
+    shift = config.pass_registration.max_shift_m
+    np.testing.assert_allclose(converted.pass_registration.max_shift_m, np.multiply(shift, 10))
+    assert converted.geometry.distortion_weight == pytest.approx(config.geometry.distortion_weight / 10)
+    assert converted.field.far_field.units_per_metre == 10.0
+    assert converted.data.box_margin_m == config.data.box_margin_m       # converted where the box is built
+    assert lengths_in_pose_units(config, 1.0) is config
