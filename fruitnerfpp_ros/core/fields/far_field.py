@@ -48,8 +48,8 @@ class FarFieldConfig:
     hidden_dim: int = 32
     units_per_metre: float = 1.0
     """The poses' units in a metre (set by the run from its scale, ``SceneScale.units_per_metre``): the far field's
-    density starts at about 1 per metre whatever the units (its intervals span metres to kilometres; in units of
-    3 cm every far sample started opaque: held-out PSNR 18 dB against 27 dB in metres)."""
+    density starts at about 1 per metre whatever the units (its intervals span metres to kilometres; a plum row in
+    units of 3 cm, its first far sample opaque from the start: held-out PSNR 18.3 dB, converted 23.9 dB)."""
 
     def __post_init__(self) -> None:
         if self.samples < 0:
