@@ -335,6 +335,10 @@ class TrainConfig:
     """Steps between lines of metrics.jsonl."""
     eval_max_views: int = 8
     """Held-out views rendered for the stage-end evaluation (the first n)."""
+    eval_max_pixels: int = 262_144
+    """... each scored on at most this many pixels (every k-th row and column of a larger view): on the CPU a
+    1280 x 960 view took minutes per stage end at every pixel (3 views, ``tiny``), stride 3 a third of it. The
+    suites' views (up to 512 x 512) are scored whole."""
     cpu_threads: int = 1
     """torch CPU threads the callers (CLI, benchmark scene, node) set before training on the CPU; the library itself
     never changes process-wide settings. 0 (the ``cpu`` preset's): ``OMP_NUM_THREADS`` when set, else the cores the
@@ -356,8 +360,8 @@ class TrainConfig:
                               f"{self.geometry.pose_refine_when!r}")
         if not 0.0 <= self.geometry.coarse_to_fine_fraction <= 1.0:
             raise ConfigError('geometry.coarse_to_fine_fraction must lie in [0, 1]')
-        if self.checkpoint_every <= 0 or self.log_every <= 0:
-            raise ConfigError('checkpoint_every and log_every must be positive')
+        if self.checkpoint_every <= 0 or self.log_every <= 0 or self.eval_max_pixels <= 0:
+            raise ConfigError('checkpoint_every, log_every and eval_max_pixels must be positive')
         if self.data.box_around not in ('fruit', 'fruit_and_cameras'):
             raise ConfigError(f"data.box_around must be 'fruit' or 'fruit_and_cameras', got {self.data.box_around!r}")
         if self.data.box_around == 'fruit' and self.data.aabb is None and not self.field.far_field.enabled:

@@ -16,7 +16,7 @@ from fruitnerfpp_ros.core.rendering.renderer import RenderOutput, RenderSettings
 from fruitnerfpp_ros.core.training.losses import fruit_prototypes
 
 __all__ = ['EvalMetrics', 'ViewRender', 'psnr_from_mse', 'semantic_iou', 'instance_assignment_accuracy',
-           'render_view', 'evaluate_views']
+           'render_view', 'eval_stride', 'evaluate_views']
 
 
 class EvalMetrics(NamedTuple):
@@ -91,10 +91,13 @@ def instance_assignment_accuracy(embedding: torch.Tensor, instance_mask: torch.T
 
 @torch.no_grad()
 def render_view(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, view: int, settings: RenderSettings,
-                chunk_rays: int, *, semantic: bool = True, instance: bool = True) -> ViewRender:
-    """Render every pixel of dataset view ``view`` (chunked); the heads not asked for come back as None."""
+                chunk_rays: int, *, semantic: bool = True, instance: bool = True, stride: int = 1) -> ViewRender:
+    """Render the pixels of dataset view ``view`` on every ``stride``-th row and column (chunked): [ceil(H / stride),
+    ceil(W / stride)] images; the heads not asked for come back as None."""
     device = grid.aabb.device
-    h, w = dataset.height, dataset.width
+    rows = torch.arange(0, dataset.height, stride, device=device)
+    cols = torch.arange(0, dataset.width, stride, device=device)
+    h, w = len(rows), len(cols)
     flat = torch.arange(h * w, device=device)
     views = torch.full_like(flat, view)
     poses = dataset.T_world_camera.to(device)
@@ -102,7 +105,7 @@ def render_view(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, v
     outs: list[RenderOutput] = []
     for start in range(0, h * w, chunk_rays):
         part = flat[start:start + chunk_rays]
-        rays = rays_for_pixels(poses, intrinsics, views[start:start + chunk_rays], part // w, part % w)
+        rays = rays_for_pixels(poses, intrinsics, views[start:start + chunk_rays], rows[part // w], cols[part % w])
         outs.append(render_rays(field, grid, rays, settings, semantic=semantic, instance=instance))
     rgb = torch.cat([o.rgb for o in outs]).reshape(h, w, 3)
     prob = torch.cat([o.fruit_prob for o in outs]).reshape(h, w) if semantic else None
@@ -110,33 +113,45 @@ def render_view(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, v
     return ViewRender(rgb, prob, emb)
 
 
+def eval_stride(height: int, width: int, max_pixels: int | None) -> int:
+    """The row and column stride that leaves at most ``max_pixels`` of a ``height`` x ``width`` view (1: every
+    pixel; None: no limit)."""
+    if max_pixels is None or height * width <= max_pixels:
+        return 1
+    return math.ceil(math.sqrt(height * width / max_pixels))
+
+
 @torch.no_grad()
 def evaluate_views(field: FruitField, grid: OccupancyGrid, dataset: SceneDataset, views: list[int],
                    settings: RenderSettings, chunk_rays: int, *, semantic: bool = True,
-                   instance: bool = True) -> EvalMetrics:
+                   instance: bool = True, max_pixels: int | None = None) -> EvalMetrics:
     """PSNR, semantic IoU and instance assignment accuracy over ``views`` (typically the held-out ones).
 
     ``semantic`` / ``instance`` False: that head is not rendered (not trained yet: the stage-end evaluation of the
-    earlier stages) and its figure is NaN.
+    earlier stages) and its figure is NaN. ``max_pixels``: a larger view is scored on every k-th row and column
+    (:func:`eval_stride`), so that high-resolution images do not make each stage's evaluation render millions of
+    rays.
     """
     if not views:
         nan = float('nan')
         return EvalMetrics(nan, nan, nan, 0)
     sq_err, pixels, inter, union, correct, chance, total = 0.0, 0, 0, 0, 0.0, 0.0, 0
+    k = eval_stride(dataset.height, dataset.width, max_pixels)
     for view in views:
-        out = render_view(field, grid, dataset, view, settings, chunk_rays, semantic=semantic, instance=instance)
+        out = render_view(field, grid, dataset, view, settings, chunk_rays, semantic=semantic, instance=instance,
+                          stride=k)
         device = out.rgb.device
         valid = (torch.ones(out.rgb.shape[:2], dtype=torch.bool, device=device) if dataset.valid_masks is None
-                 else dataset.valid_masks[view].to(device))
-        image = dataset.images[view].to(device)
+                 else dataset.valid_masks[view, ::k, ::k].to(device))
+        image = dataset.images[view, ::k, ::k].to(device)
         sq_err += float(((out.rgb - image) ** 2)[valid].sum()) / 3.0
         pixels += int(valid.sum())
         if out.fruit_prob is not None:
-            i, u = semantic_iou(out.fruit_prob[valid], dataset.semantic_masks[view].to(device)[valid])
+            i, u = semantic_iou(out.fruit_prob[valid], dataset.semantic_masks[view, ::k, ::k].to(device)[valid])
             inter, union = inter + i, union + u
         if out.embedding is not None:
             c, ch, t = instance_assignment_accuracy(out.embedding.reshape(-1, out.embedding.shape[-1]),
-                                                    dataset.instance_masks[view].reshape(-1).to(device))
+                                                    dataset.instance_masks[view, ::k, ::k].reshape(-1).to(device))
             correct, chance, total = correct + c, chance + ch, total + t
     nan = float('nan')
     return EvalMetrics(psnr_from_mse(sq_err / pixels) if pixels else nan, inter / union if union else nan,

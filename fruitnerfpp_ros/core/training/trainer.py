@@ -375,7 +375,8 @@ def _finish_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDat
     # the heads a stage has not trained yet are not rendered (their figures are NaN: null in metrics.jsonl)
     started = time.perf_counter()
     metrics = evaluate_views(model.field, model.grid, dataset, eval_views, model.settings, config.render.chunk_rays,
-                             semantic=stage.name != 'geometry', instance=stage.name == 'instance')
+                             semantic=stage.name != 'geometry', instance=stage.name == 'instance',
+                             max_pixels=config.eval_max_pixels)
     evaluate_s = time.perf_counter() - started
     clock.evaluate_s += evaluate_s
     run.append_metrics({'stage': stage.name, 'event': 'stage_end', 'step': counters.step,

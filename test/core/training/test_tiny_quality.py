@@ -10,6 +10,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pytest
 import torch
 
 from fruitnerfpp_ros.core.data.dataset import load_dataset
@@ -17,7 +18,7 @@ from fruitnerfpp_ros.core.fields.fruit_field import FruitField
 from fruitnerfpp_ros.core.training import RunDir, load_trained_scene
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_checkpoint
 from fruitnerfpp_ros.core.training.model import occupancy_grid
-from fruitnerfpp_ros.core.training.metrics import evaluate_views
+from fruitnerfpp_ros.core.training.metrics import eval_stride, evaluate_views, psnr_from_mse, render_view
 
 
 def _untrained(run: Path) -> tuple[float, float]:
@@ -107,3 +108,25 @@ def test_a_run_written_before_the_far_field_loads_and_renders_without_one(tiny_t
     metrics = evaluate_views(loaded.field, loaded.occupancy, dataset, view, loaded.render_settings,
                              loaded.config.render.chunk_rays, semantic=False, instance=False)
     assert math.isfinite(metrics.psnr) and metrics.psnr > 10.0
+
+
+def test_large_views_are_scored_on_a_strided_grid_of_the_same_pixels(tiny_trained_run: Path) -> None:
+    """A view over ``eval_max_pixels`` is scored on every k-th row and column: the rendered pixels are those of the
+    whole view at those places, and the figures are the whole render's there (the evaluation of 1280 x 960 views
+    renders a ninth of the rays)."""
+    assert eval_stride(960, 1280, 262_144) == 3 and eval_stride(512, 512, 262_144) == 1
+    assert eval_stride(96, 96, None) == 1 and eval_stride(96, 96, 96 * 96 // 4) == 2
+    scene = load_trained_scene(tiny_trained_run, device='cpu')
+    dataset = load_dataset(scene.dataset_dir, eval_every=scene.config.data.eval_every)
+    view = int(dataset.eval_indices[0])
+    whole = render_view(scene.field, scene.occupancy, dataset, view, scene.render_settings, 4096)
+    strided = render_view(scene.field, scene.occupancy, dataset, view, scene.render_settings, 4096, stride=2)
+    assert strided.rgb.shape == (48, 48, 3)
+    torch.testing.assert_close(strided.rgb, whole.rgb[::2, ::2], atol=1e-5, rtol=1e-5)
+    torch.testing.assert_close(strided.embedding, whole.embedding[::2, ::2], atol=1e-4, rtol=1e-4)
+    metrics = evaluate_views(scene.field, scene.occupancy, dataset, [view], scene.render_settings, 4096,
+                             max_pixels=96 * 96 // 4)
+    expected = psnr_from_mse(float(((whole.rgb - dataset.images[view])[::2, ::2] ** 2).mean()))
+    assert metrics.psnr == pytest.approx(expected, abs=1e-3)
+    assert metrics.psnr != pytest.approx(evaluate_views(scene.field, scene.occupancy, dataset, [view],
+                                                        scene.render_settings, 4096).psnr, abs=1e-3)
