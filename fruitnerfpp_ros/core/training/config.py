@@ -336,9 +336,10 @@ class TrainConfig:
     eval_max_views: int = 8
     """Held-out views rendered for the stage-end evaluation (the first n)."""
     eval_max_pixels: int = 262_144
-    """... each scored on at most this many pixels (every k-th row and column of a larger view): on the CPU a
-    1280 x 960 view took minutes per stage end at every pixel (3 views, ``tiny``), stride 3 a third of it. The
-    suites' views (up to 512 x 512) are scored whole."""
+    """... each scored on at most this many pixels (every k-th row and column of a larger view): 3 views of
+    1280 x 960 took 203-339 s per stage end on the CPU at every pixel (``tiny``), 27-44 s at every 3rd row and
+    column, with the same figures (docs/results/robustness.md). The suites' views (up to 512 x 512) are scored
+    whole."""
     cpu_threads: int = 1
     """torch CPU threads the callers (CLI, benchmark scene, node) set before training on the CPU; the library itself
     never changes process-wide settings. 0 (the ``cpu`` preset's): ``OMP_NUM_THREADS`` when set, else the cores the
