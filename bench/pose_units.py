@@ -15,6 +15,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -22,18 +23,21 @@ from pathlib import Path
 import numpy as np
 
 from fruitnerfpp_ros.core.data.ply_io import read_ply_vertices, write_ply_vertices
+from fruitnerfpp_ros.core.data.transforms_format import read_transforms, write_transforms
 
 
 def scaled_copy(source: Path, out: Path, factor: float) -> None:
     """Copy ``source`` to ``out`` with its poses, ground truth and sparse points multiplied by ``factor``."""
     shutil.copytree(source, out)
-    transforms = json.loads((source / 'transforms.json').read_text())
-    for frame in transforms['frames']:
-        pose = np.asarray(frame['transform_matrix'], np.float64)
+    transforms = read_transforms(source)
+    scaled = []
+    for frame in transforms.frames:
+        pose = np.array(frame.T_world_camera, np.float64)
         pose[:3, 3] *= factor
-        frame['transform_matrix'] = pose.tolist()
-    transforms['frame'] = f'{transforms.get("frame", "world")}, every length x {factor}'
-    (out / 'transforms.json').write_text(json.dumps(transforms, indent=1))
+        scaled.append(dataclasses.replace(frame, T_world_camera=pose))
+    transforms.frames = scaled
+    transforms.extra['frame'] = f'{transforms.extra.get("frame", "world")}, every length x {factor}'
+    write_transforms(out, transforms)
     gt_path = source / 'gt_fruits.json'
     if gt_path.is_file():
         gt = json.loads(gt_path.read_text())
@@ -45,7 +49,7 @@ def scaled_copy(source: Path, out: Path, factor: float) -> None:
             if 'radii' in fruit:
                 fruit['radii'] = [float(v) * factor for v in fruit['radii']]
         (out / 'gt_fruits.json').write_text(json.dumps(gt, indent=1))
-    ply = transforms.get('ply_file_path')
+    ply = transforms.ply_file_path
     if ply and (source / ply).is_file():
         vertices = read_ply_vertices(source / ply).copy()
         for axis in ('x', 'y', 'z'):

@@ -53,14 +53,21 @@ def test_the_same_spheres_measure_alike_however_far_the_cameras_stand(tmp_path: 
     assert 1.4 * radii.mean() < measured[0] < 2.6 * radii.mean()
 
 
+@pytest.fixture(scope='module')
+def metric_spheres(tmp_path_factory: pytest.TempPathFactory):  # noqa: ANN201
+    """The sphere scene in metres and its measured scale (shared by the unit variants)."""
+    dataset = load_dataset(make_sphere_scene(tmp_path_factory.mktemp('units') / 's', views=20, size=64, fruits=8),
+                           eval_every=0)
+    return dataset, estimate_scene_scale(dataset, _search_box(dataset))
+
+
 @pytest.mark.parametrize('units', [0.05, 20.0])   # a pose unit of 20 m, of 5 cm
-def test_poses_in_other_units_than_metres_measure_the_fruit_in_those_units(tmp_path: Path, units: float) -> None:
+def test_poses_in_other_units_than_metres_measure_the_fruit_in_those_units(
+        metric_spheres, units: float) -> None:  # noqa: ANN001
     """Poses not in metres (a COLMAP reconstruction, a scene modelled in centimetres) measure the fruit outside the
     metric range: the measurement is used as it is (every length follows it), and the scale says how many pose
     units make a metre; ``outside_range: clamp`` uses the range's end instead."""
-    scene = make_sphere_scene(tmp_path / 's', views=20, size=64, fruits=8)
-    dataset = load_dataset(scene, eval_every=0)
-    metric = estimate_scene_scale(dataset, _search_box(dataset))
+    dataset, metric = metric_spheres
     assert metric.source == 'masks' and metric.units_per_metre == 1.0
     poses = dataset.T_world_camera.clone()
     poses[:, :3, 3] *= units
