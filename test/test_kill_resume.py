@@ -112,7 +112,7 @@ def faults(tmp_path_factory: pytest.TempPathFactory) -> SimpleNamespace:
     keyframes = collect_keyframes(bag, root / 'keyframes', SETTINGS, log=lambda *_: None).store.directory
     reference = root / 'reference'
     Program('none', ['fruitnerfpp_ros.cli.main', 'run', str(keyframes), '--out', str(reference), '--config',
-                     str(config), '--device', 'cpu'], root / 'reference.log').finish()
+                     str(config), '--device', 'cpu', '--preset', 'tiny'], root / 'reference.log').finish()
     return SimpleNamespace(root=root, messages=messages, bag=bag, config=config, keyframes=keyframes,
                            reference=reference, n_frames=len(read_transforms(keyframes).frames))
 
@@ -131,7 +131,7 @@ def _assert_same_as_reference(faults: SimpleNamespace, run_dir: Path, keyframes_
 def test_fruitnerfpp_run_resumes_after_kill(faults: SimpleNamespace) -> None:
     out = faults.root / 'run_killed'
     args = ['fruitnerfpp_ros.cli.main', 'run', str(faults.keyframes), '--out', str(out), '--config',
-            str(faults.config), '--device', 'cpu', '--resume']
+            str(faults.config), '--device', 'cpu', '--preset', 'tiny', '--resume']
     for point in POINTS['run']:
         Program(point, args, faults.root / 'run.log').kill_at_point()
         with open(out / 'metrics.jsonl', 'a') as f:  # as if the kill had cut a line (before: JSONDecodeError)

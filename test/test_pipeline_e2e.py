@@ -34,7 +34,8 @@ def pipeline_run(tiny_trained_run: Path, tiny_apple_dataset: Path, tmp_path_fact
     warm_up()
     run = tmp_path_factory.mktemp('e2e') / 'run'
     shutil.copytree(tiny_trained_run, run)
-    rc, out, err = _cli(['run', tiny_apple_dataset, '--out', run, '--skip-training', '--device', 'cpu'])
+    rc, out, err = _cli(['run', tiny_apple_dataset, '--out', run, '--skip-training', '--device', 'cpu', '--preset',
+                         'tiny'])
     assert rc == 0, err
     return run, out
 

@@ -1,8 +1,8 @@
 """``fruitnerfpp demo --out DIR``: synthetic orchard bag -> bag replay on this machine -> count vs ground truth.
 
 What ``make demo`` runs. Steps: generate a small synthetic tree and record it as a rosbag2 (the topics a robot
-would record), replay the bag through the same keyframe collector as the live node, train (``tiny`` preset on the
-CPU), count, and print the count beside the ground truth plus the output paths.
+would record), replay the bag through the same keyframe collector as the live node, train (the ``tiny``
+preset: the demo takes minutes), count, and print the count beside the ground truth plus the output paths.
 """
 
 from __future__ import annotations
@@ -79,8 +79,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--resolution', type=int, default=96, help='square image size, px')
     parser.add_argument('--trajectory', choices=('hemisphere', 'row'), default='hemisphere')
     parser.add_argument('--storage', choices=('mcap', 'sqlite3'), default='mcap', help='rosbag2 storage')
-    parser.add_argument('--preset', choices=PRESET_CHOICES, default='auto',
-                        help='training preset (auto = default on CUDA, tiny on CPU)')
+    parser.add_argument('--preset', choices=PRESET_CHOICES, default='tiny',
+                        help='training preset (default tiny: the demo takes minutes; auto = default on CUDA, cpu '
+                             'on the CPU)')
     parser.add_argument('--device', default='auto', help='torch device: auto, cpu, cuda, cuda:N')
     parser.add_argument('--seed', type=int, default=0)
     parser.set_defaults(func=run)

@@ -126,8 +126,8 @@ def run(args: argparse.Namespace) -> int:
 
     settings, row, orchard_section = _settings(args)
     configs = pipeline_configs(settings)
-    for warning in configs.warnings:
-        print(f'[WARN] {warning}')
+    for note in configs.notes:
+        print(f'[INFO] {note}')
     orchard = orchard_config(row, orchard_section)
     source = prepare_source(args.source, args.out, settings, row)
     planting_map = args.trees or (Path(row.planting_map) if row.planting_map else None)

@@ -30,7 +30,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--params', type=Path, help='ROS 2 params file (e.g. config/fruit_counter.yaml): topics, '
                         'pose source, keyframe selection, preset')
     parser.add_argument('--preset', choices=PRESET_CHOICES,
-                        help="training preset (overrides the params file; auto = default on CUDA, tiny on CPU)")
+                        help="training preset (overrides the params file; auto = default on CUDA, cpu on the CPU)")
     parser.add_argument('--device', help='torch device: auto, cpu, cuda, cuda:N')
     parser.add_argument('--no-train', action='store_true', help='only collect keyframes')
     parser.add_argument('--skip-training', action='store_true',

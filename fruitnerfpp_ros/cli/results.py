@@ -118,7 +118,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument('data_dir', type=Path, help='transforms.json dataset directory')
     p.add_argument('--out', type=Path, required=True, help='run directory')
     p.add_argument('--preset', default=AUTO, choices=PRESET_CHOICES,
-                   help='training preset (default auto: default on CUDA, tiny on the CPU)')
+                   help='training preset (default auto: default on CUDA, cpu on the CPU)')
     p.add_argument('--device', default='auto', help='auto, cpu, cuda, cuda:N')
     p.add_argument('--config', type=Path, help='YAML with optional sections train / export / clustering')
     p.add_argument('--resume', action='store_true', help='continue training from RUN_DIR')

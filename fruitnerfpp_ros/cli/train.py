@@ -18,12 +18,12 @@ __all__ = ['register', 'run', 'resolve_preset', 'resolve_train_config']
 
 
 def resolve_preset(name: str, device: str) -> str:
-    """The preset ``name`` stands for on ``device`` (``core.device.device_preset``); the CPU's warning for ``auto``
+    """The preset ``name`` stands for on ``device`` (``core.device.device_preset``); the CPU's note for ``auto``
     goes to stderr, as the node logs it."""
     from fruitnerfpp_ros.core.device import device_preset
-    preset, warning = device_preset(name, device)
-    if warning:
-        print(f'warning: {warning}', file=sys.stderr)
+    preset, note = device_preset(name, device)
+    if note:
+        print(f'note: {note}', file=sys.stderr)
     return preset
 
 
@@ -76,7 +76,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument('--out', required=True, metavar='RUN_DIR', help='run directory (config, checkpoints, metrics)')
     parser.add_argument('--preset', default=AUTO, choices=PRESET_CHOICES,
                         help='hyper-parameter preset: tiny (CPU tests), cpu (a real tree on a CPU), default (GPU), '
-                             'paper (long schedule); auto (the default): default on CUDA, tiny on the CPU')
+                             'paper (long schedule); auto (the default): default on CUDA, cpu on the CPU')
     parser.add_argument('--device', default='auto', help='auto, cpu or cuda[:N] (default: auto)')
     parser.add_argument('--resume', action='store_true', help='continue from RUN_DIR/checkpoints/latest.pt')
     parser.add_argument('--config', metavar='FILE.yaml', help='YAML with TrainConfig values overriding the preset')

@@ -6,7 +6,7 @@ import os
 
 import torch
 
-from fruitnerfpp_ros.core.preset_names import AUTO, AUTO_ON_CPU_WARNING, auto_preset
+from fruitnerfpp_ros.core.preset_names import AUTO, AUTO_ON_CPU_NOTE, auto_preset
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['resolve_device', 'device_preset', 'available_cores', 'cpu_thread_count', 'use_cpu_threads']
@@ -30,8 +30,8 @@ def resolve_device(name: str = 'auto') -> torch.device:
 
 
 def device_preset(name: str, device: str = 'auto') -> tuple[str, str | None]:
-    """(The training preset ``name`` stands for on ``device``, a warning for the user or None): a named preset as it
-    is; ``auto`` is ``default`` on CUDA and ``tiny`` on the CPU, with ``AUTO_ON_CPU_WARNING``.
+    """(The training preset ``name`` stands for on ``device``, a note for the user or None): a named preset as it
+    is; ``auto`` is ``default`` on CUDA and ``cpu`` on the CPU, with ``AUTO_ON_CPU_NOTE``.
 
     Raises:
         ConfigError: ``auto`` with a device that cannot be used (see :func:`resolve_device`).
@@ -39,7 +39,7 @@ def device_preset(name: str, device: str = 'auto') -> tuple[str, str | None]:
     if name != AUTO:
         return name, None
     on_cuda = resolve_device(device).type == 'cuda'
-    return auto_preset(on_cuda), (None if on_cuda else AUTO_ON_CPU_WARNING)
+    return auto_preset(on_cuda), (None if on_cuda else AUTO_ON_CPU_NOTE)
 
 
 def available_cores() -> int:

@@ -334,8 +334,8 @@ def replay_bag(bag_path: str | Path, run_dir: str | Path, settings: CounterSetti
     if resume:  # a kill or a full disk may have cut the last metrics line, which resuming reads again
         trim_torn_line(run_dir / 'metrics.jsonl')
     configs = pipeline_configs(settings)
-    for warning in configs.warnings:
-        log(LogLevel.WARN, warning)
+    for note in configs.notes:
+        log(LogLevel.INFO, note)
     use_cpu_threads(configs.train.cpu_threads, settings.device)  # the replay owns its process
     with partition_pool(configs.cluster.n_jobs) as pool:  # the replay owns the clustering workers
         result = run_pipeline(keyframes_dir, run_dir, train_config=configs.train,

@@ -81,8 +81,8 @@ class CounterSettings:
     blur_threshold: float = _p(0.0, 'Reject frames whose variance of the Laplacian (8-bit grey) is below this; '
                                '0 = off.')
     preset: Literal['auto', 'tiny', 'cpu', 'default', 'paper'] = _p(
-        'auto', "Training preset; 'auto' = default on CUDA, tiny on the CPU (with a warning); 'cpu' = a better "
-        'count on the CPU in about 3x the time of tiny.')
+        'auto', "Training preset; 'auto' = default on CUDA, cpu on the CPU; 'tiny' = about 3x faster than cpu, "
+        "fewer of a row's fruit counted.")
     device: str = _p('auto', "Torch device: auto, cpu, cuda or cuda:N.")
     auto_train_after: int = _p(0, 'Start training by itself once this many keyframes are collected (once); '
                                '0 = only on ~/train.')
@@ -172,13 +172,13 @@ def keyframe_config(settings: CounterSettings) -> KeyframeConfig:
 
 
 class PipelineConfigs(NamedTuple):
-    """Configs handed to :func:`fruitnerfpp_ros.core.pipeline.run_pipeline`, plus warnings for the log."""
+    """Configs handed to :func:`fruitnerfpp_ros.core.pipeline.run_pipeline`, plus notes for the log."""
 
     train: Any
     export: Any
     cluster: Any
     preset: str
-    warnings: tuple[str, ...]
+    notes: tuple[str, ...]
 
 
 def pipeline_configs(settings: CounterSettings) -> PipelineConfigs:
@@ -191,8 +191,7 @@ def pipeline_configs(settings: CounterSettings) -> PipelineConfigs:
     from fruitnerfpp_ros.core.export.config import ExportConfig
     from fruitnerfpp_ros.core.training import TrainConfig
     from fruitnerfpp_ros.core.device import device_preset
-    name, warning = device_preset(settings.preset, settings.device)
-    warnings = [warning] if warning else []
+    name, note = device_preset(settings.preset, settings.device)
     sections: dict[str, Any] = {}
     if settings.config_file:  # the same file `fruitnerfpp run --config` reads, under the same rules
         sections = load_pipeline_sections(settings.config_file, kind='config_file')
@@ -205,7 +204,7 @@ def pipeline_configs(settings: CounterSettings) -> PipelineConfigs:
     except ConfigError as err:
         raise ConfigError(f'config_file {settings.config_file}: {err}' if settings.config_file else str(err)) \
             from err
-    return PipelineConfigs(train, export, cluster, name, tuple(warnings))
+    return PipelineConfigs(train, export, cluster, name, (note,) if note else ())
 
 
 def use_node_cpu_threads(configs: PipelineConfigs, device: str) -> None:

@@ -201,8 +201,8 @@ class TrainingRuns:
             from fruitnerfpp_ros.core.clustering.workers import partition_pool
             from fruitnerfpp_ros.core.pipeline import run_pipeline
             configs = pipeline_configs(settings)
-            for warning in configs.warnings:
-                self._log(LogLevel.WARN, warning)
+            for note in configs.notes:
+                self._log(LogLevel.INFO, note)
             use_node_cpu_threads(configs, settings.device)  # the node owns its process
             if resume:  # a kill or a full disk may have cut the last metrics line, which resuming reads again
                 trim_torn_line(train_dir / 'metrics.jsonl')

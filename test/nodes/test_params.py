@@ -42,12 +42,12 @@ def test_params_file_forms(tmp_path: Path) -> None:
 def test_pipeline_configs_auto_preset_and_overrides(tmp_path: Path) -> None:
     from fruitnerfpp_ros.core.training import TrainConfig
     configs = pipeline_configs(settings_from_parameters({'device': 'cpu'}))
-    assert configs.preset == 'tiny' and 'tiny' in configs.warnings[0]
-    assert configs.train == TrainConfig.preset('tiny')
+    assert configs.preset == 'cpu' and "'cpu' preset" in configs.notes[0]
+    assert configs.train == TrainConfig.preset('cpu')
     override = tmp_path / 'c.yaml'
     override.write_text('train:\n  geometry:\n    iterations: 7\n')
     configs = pipeline_configs(settings_from_parameters({'preset': 'tiny', 'config_file': str(override)}))
-    assert configs.train.geometry.iterations == 7 and configs.warnings == ()
+    assert configs.train.geometry.iterations == 7 and configs.notes == ()
     override.write_text('train:\n  geometry:\n    iterashuns: 7\n')
     with pytest.raises(ConfigError, match='iterashuns'):
         pipeline_configs(settings_from_parameters({'config_file': str(override)}))
