@@ -147,6 +147,10 @@ def register(subparsers: Any) -> None:
     parser.add_argument('--pass-offset', nargs=2, type=float, metavar=('METRES', 'DEGREES'),
                         help='odometry drift between the sides: the recorded poses of the views on the +y side (a '
                              "row's return pass) shifted along x and turned about the vertical")
+    parser.add_argument('--mask-noise', nargs=3, type=float, metavar=('MISSED', 'FALSE', 'BOUNDARY_PX'),
+                        help="instance masks as a learned segmenter's: the share of fruit masks missed, false "
+                             'detections per fruit, boundaries moved by this many pixels (e.g. 0.15 0.1 1); the '
+                             'ground truth stays exact')
     row = parser.add_argument_group('a row of trees (--scene row)')
     row.add_argument('--scene', choices=('tree', 'row'), default='tree',
                      help='tree (default): one tree; row: a row of --trees trees whose canopies touch or overlap, '
@@ -196,6 +200,11 @@ def _config_from_args(args: argparse.Namespace) -> Any:
             raise SynthError(f'--pose-noise: expected two numbers (metres, degrees), got {args.pose_noise}') from None
     if args.pass_offset is not None:
         overrides['pass_offset_m'], overrides['pass_offset_deg'] = args.pass_offset
+    if args.mask_noise is not None:
+        missed, false, boundary = args.mask_noise
+        if boundary != int(boundary):
+            raise SynthError(f'--mask-noise: BOUNDARY_PX must be a whole number of pixels, got {boundary}')
+        overrides.update(mask_missed=missed, mask_false=false, mask_boundary_px=int(boundary))
     return dataclasses.replace(base, **overrides)
 
 

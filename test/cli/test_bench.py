@@ -79,8 +79,24 @@ def test_a_bag_scene_replays_with_the_mask_source_of_its_masks(tmp_path: Path) -
                        via_bag=True)
     sources = {masks: _bag_parameters(SceneJob(scene, tmp_path, masks, 'cpu', 'tiny', TrainConfig.preset('tiny'),
                                                ExportConfig(), ClusterConfig()), scene.synth_config('cpu'))
-               ['mask_source'] for masks in ('gt', 'fallback', 'semantic')}
-    assert sources == {'gt': 'topic', 'fallback': 'fallback', 'semantic': 'semantic_topic'}
+               ['mask_source'] for masks in ('gt', 'fallback', 'semantic', 'noisy')}
+    assert sources == {'gt': 'topic', 'fallback': 'fallback', 'semantic': 'semantic_topic', 'noisy': 'topic'}
+
+
+def test_noisy_masks_are_generated_degraded_for_both_counters(tmp_path: Path) -> None:
+    """``--masks noisy``: the scene is generated with a segmenter's errors in its masks (dataset and bag alike)."""
+    from fruitnerfpp_ros.core.benchmark.scene_run import SceneJob, scene_synth_config
+    from fruitnerfpp_ros.core.clustering.config import ClusterConfig
+    from fruitnerfpp_ros.core.export.config import ExportConfig
+    from fruitnerfpp_ros.core.training import TrainConfig
+
+    scene = SuiteScene('micro', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'micro')
+    configs = {masks: scene_synth_config(SceneJob(scene, tmp_path, masks, 'cpu', 'tiny', TrainConfig.preset('tiny'),
+                                                  ExportConfig(), ClusterConfig())) for masks in ('gt', 'noisy')}
+    assert not configs['gt'].degrades_masks and configs['gt'] == scene.synth_config('cpu')
+    assert (configs['noisy'].mask_missed, configs['noisy'].mask_false, configs['noisy'].mask_boundary_px) == \
+        (0.15, 0.1, 1)
+    assert configs['noisy'].seed == 5 and configs['noisy'].count == 8
 
 
 def test_bag_scene_replays_with_the_recordings_topics_and_frame(tmp_path: Path) -> None:

@@ -152,8 +152,8 @@ class SuiteResult:
         suite: the suite's name.
         scenes: per scene, in suite order.
         preset: training preset.
-        masks: ``gt`` (the dataset's instance masks), ``fallback`` (the built-in segmenter's) or ``semantic``
-            (blobs of the dataset's fruit masks).
+        masks: ``gt`` (the dataset's instance masks), ``fallback`` (the built-in segmenter's), ``semantic``
+            (blobs of the dataset's fruit masks) or ``noisy`` (the dataset's, degraded as a segmenter's).
         device: torch device asked for.
         jobs: scenes run at once.
         config_file: the ``--config`` file, or ``''``.

@@ -32,7 +32,7 @@ __all__ = ['SuiteOptions', 'run_suite', 'ACCURACY_JSON', 'ACCURACY_MD', 'MASK_SO
 
 ACCURACY_JSON, ACCURACY_MD = 'accuracy.json', 'accuracy.md'
 #: Where the instance masks of both counters come from.
-MASK_SOURCES = ('gt', 'fallback', 'semantic')
+MASK_SOURCES = ('gt', 'fallback', 'semantic', 'noisy')
 
 
 @dataclass(frozen=True)
@@ -50,7 +50,8 @@ class SuiteOptions:
     masks: str = 'gt'
     """``gt``: the datasets' instance masks; ``fallback``: the built-in segmenter's (bag replay: ``mask_source``);
     ``semantic``: blobs of the datasets' fruit masks, as ``fruitnerfpp segment --method semantic`` makes them (bag
-    replay: ``mask_source: semantic_topic``)."""
+    replay: ``mask_source: semantic_topic``); ``noisy``: the datasets' and bags' instance masks degraded as a learned
+    segmenter's (``scene_run.NOISY_MASKS``: missed fruit, false detections, boundaries a pixel off)."""
     device: str = 'auto'
     """Torch device: auto, cpu, cuda, cuda:N."""
     jobs: int = 1

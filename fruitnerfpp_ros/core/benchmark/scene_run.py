@@ -11,6 +11,7 @@ suite goes on.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import os
 import resource
@@ -39,9 +40,13 @@ if TYPE_CHECKING:  # torch stays unimported until a scene runs
     from fruitnerfpp_ros.core.training import TrainConfig
 
 __all__ = ['BagReplayRequest', 'BagReplayOutcome', 'BagRunner', 'SceneJob', 'run_scene', 'scored_ground_truth',
-           'SCENE_LOG', 'SCENE_JSON', 'PICTURE']
+           'SCENE_LOG', 'SCENE_JSON', 'PICTURE', 'NOISY_MASKS', 'scene_synth_config']
 
 SCENE_LOG, SCENE_JSON, PICTURE, TRACK_COUNTS = 'scene.log', 'scene.json', 'count.png', 'track_counts.json'
+
+#: ``--masks noisy``: the SynthConfig mask settings of a segmenter-like set of masks (``synthetic/mask_noise.py``):
+#: 15 % of the fruit masks of a view missed, one false detection per ten fruit, boundaries moved by a pixel.
+NOISY_MASKS = {'mask_missed': 0.15, 'mask_false': 0.1, 'mask_boundary_px': 1}
 
 
 @dataclass(frozen=True)
@@ -82,7 +87,8 @@ class SceneJob:
     """The suite's output directory (the scene writes into ``out_dir/<name>``, replacing what was there)."""
     masks: str
     """``gt``: the dataset's instance masks; ``fallback``: the built-in segmenter's; ``semantic``: blobs of the
-    fruit masks (for both counters)."""
+    fruit masks; ``noisy``: the scene's masks degraded as a segmenter's (:data:`NOISY_MASKS`) (for both
+    counters)."""
     device: str
     """Torch device for rendering and training."""
     preset: str
@@ -224,13 +230,19 @@ def _pipeline_figures(result: PipelineResult, record: _Record) -> None:
         record.times['count'] = float(result.count.stats['time_total_s'])
 
 
+def scene_synth_config(job: SceneJob) -> SynthConfig:
+    """The SynthConfig the scene is generated with: the scene's, with a segmenter's mask errors for ``noisy``."""
+    config = job.scene.synth_config(job.device)
+    return dataclasses.replace(config, **NOISY_MASKS) if job.masks == 'noisy' else config
+
+
 def _steps(job: SceneJob, scene_dir: Path, record: _Record) -> None:
     """Every step of the scene; raises only when nothing can be scored (no scene)."""
     from fruitnerfpp_ros.core.device import use_cpu_threads
     from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
     from fruitnerfpp_ros.core.synthetic import generate_orchard
 
-    config = job.scene.synth_config(job.device)
+    config = scene_synth_config(job)
     # this process is the scene's alone; its bag replay resolves an auto thread count from OMP_NUM_THREADS
     threads = use_cpu_threads(job.train_config.cpu_threads, job.device, share=job.cpu_share)
     os.environ['OMP_NUM_THREADS'] = str(threads)

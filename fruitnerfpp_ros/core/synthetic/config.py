@@ -79,6 +79,15 @@ class SynthConfig:
     and the bag); the images are rendered from the true poses."""
     pose_noise_deg: float = 0.0
     """Standard deviation (degrees, per axis) of a rotation noise on the recorded camera orientations."""
+    mask_missed: float = 0.0
+    """Instance masks as a learned segmenter's (``mask_noise.py``): the share of the fruit masks it misses (each
+    removed with this probability, per view). The masks of the dataset and the bag are degraded alike; the ground
+    truth (``gt_fruits.json``) stays the renderer's. transforms.json records ``mask_source: ground_truth_degraded``
+    when any ``mask_*`` setting is on."""
+    mask_false: float = 0.0
+    """... false detections per fruit in a view (fruit-sized discs on leaves and gaps near the fruit)."""
+    mask_boundary_px: int = 0
+    """... each mask's boundary moved by this many pixels (eroded, kept or dilated with equal odds)."""
     pass_offset_m: float = 0.0
     """Odometry drift between the two sides: the recorded poses of every view on the +y side of the tree (a row's
     return pass) shifted along x by this (m), as the error a robot's odometry has built up after the turn. Feature
@@ -150,6 +159,11 @@ class SynthConfig:
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not 0.0 <= value < 1e3:
                 raise SynthError(f'{name} must be a number >= 0, got {value!r}')
+        _number(self, 'mask_missed', 0.0, 1.0)
+        _number(self, 'mask_false', 0.0, 1.0)
+        if isinstance(self.mask_boundary_px, bool) or not isinstance(self.mask_boundary_px, int) \
+                or not 0 <= self.mask_boundary_px <= 10:
+            raise SynthError(f'mask_boundary_px must be an integer within 0..10, got {self.mask_boundary_px!r}')
         for name in ('pass_offset_m', 'pass_offset_deg'):
             value = getattr(self, name)
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not abs(value) < 1e3:
@@ -198,6 +212,11 @@ class SynthConfig:
             raise SynthError(f'distortion coefficients must be within -10..10, got {self.distortion!r}')
         object.__setattr__(self, 'distortion', (coefficients + (0.0,))[:5])
         _number(self, 'appearance_variation', 0.0, 1.0)
+
+    @property
+    def degrades_masks(self) -> bool:
+        """Whether the masks are degraded as a segmenter's (any ``mask_*`` setting on)."""
+        return self.mask_missed > 0 or self.mask_false > 0 or self.mask_boundary_px > 0
 
     @property
     def width(self) -> int:

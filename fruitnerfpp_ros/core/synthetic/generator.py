@@ -43,6 +43,7 @@ from fruitnerfpp_ros.core.data.png_io import write_mask_png, write_rgb_png, writ
 from fruitnerfpp_ros.core.synthetic.depth_sensor import sensed_depth
 from fruitnerfpp_ros.core.synthetic.dataset_writer import GT_NAME, SPARSE_PLY_NAME, write_gt_fruits, write_sparse_ply
 from fruitnerfpp_ros.core.synthetic.lens import is_distorted, undistorted_pixel_grid
+from fruitnerfpp_ros.core.synthetic.mask_noise import degrade_instances
 from fruitnerfpp_ros.core.synthetic.preview import preview_view_indices, write_preview
 from fruitnerfpp_ros.core.synthetic.rasterizer import Renderer
 from fruitnerfpp_ros.core.synthetic.primitives import Scene
@@ -144,6 +145,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     preview_rgb, preview_inst, preview_labels = [], [], []
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9C]))
     depth_rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9E]))  # the depth sensor's own stream
+    mask_rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0xA1]))  # the segmenter-like masks' own
     per_view = int(np.ceil(config.sparse_points / config.views)) if config.sparse_points else 0
     recorded = _noisy_poses(poses, config)
     pc_points, pc_colors = [], []
@@ -158,8 +160,11 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
             view = renderer.render(T, K)
             name = f'{i:04d}.png'
             write_rgb_png(out_dir / 'images' / name, view.rgb)
-            write_uint16_png(out_dir / 'instances' / name, view.instance)
-            write_mask_png(out_dir / 'semantics' / name, view.instance > 0)
+            masks = degrade_instances(view.instance, mask_rng, missed=config.mask_missed,
+                                      false_rate=config.mask_false, boundary_px=config.mask_boundary_px) \
+                if config.degrades_masks else view.instance
+            write_uint16_png(out_dir / 'instances' / name, masks)
+            write_mask_png(out_dir / 'semantics' / name, masks > 0)
             visible[i] = np.bincount(view.instance.reshape(-1).astype(np.int64), minlength=n_fruits + 1) > 0
             stamp_ns = BAG_START_NS + i * FRAME_PERIOD_NS
             depth = None
@@ -179,10 +184,10 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
             if bag_writer is not None:
                 while pending_fixes and pending_fixes[0].stamp_ns <= stamp_ns:
                     bag_writer.write_gnss_fix(pending_fixes.pop(0))
-                bag_writer.write_frame(stamp_ns, view.rgb, view.instance, recorded[i], K, depth)
+                bag_writer.write_frame(stamp_ns, view.rgb, masks, recorded[i], K, depth)
             if i in preview_idx:
                 preview_rgb.append(view.rgb)
-                preview_inst.append(view.instance)
+                preview_inst.append(masks)
                 preview_labels.append(f'view {i}')
             progress(ProgressEvent(Phase.SYNTH_RENDER, i + 1, config.views))
         for fix in pending_fixes if bag_writer is not None else ():
@@ -198,7 +203,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
         'fruit_types': sorted(counts),
         'generator': {'name': 'fruitnerfpp synth', 'config': _recorded_config(config)},
         'frame': 'world: z up, metres, ground at z = 0, tree trunk at the origin',
-        MASK_SOURCE_KEY: 'ground_truth',                  # rendered instance ids
+        MASK_SOURCE_KEY: 'ground_truth_degraded' if config.degrades_masks else 'ground_truth',  # rendered ids
         **(transforms_extra or {}),
     }
     transforms_path = write_transforms(out_dir, TransformsFile(K, frames, ply_name, extra,
@@ -218,11 +223,13 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
 
 
 def _recorded_config(config: SynthConfig) -> dict:
-    """The config as transforms.json records it; without a depth camera its depth_* settings are left out, so a
-    dataset without depth is byte-identical to one written before depth existed."""
+    """The config as transforms.json records it; without a depth camera its depth_* settings are left out, and with
+    exact masks its mask_* settings, so such a dataset is byte-identical to one written before these existed."""
     mapping = config_to_mapping(config)
     if config.depth == 'none':
         mapping = {k: v for k, v in mapping.items() if not k.startswith('depth')}
+    if not config.degrades_masks:
+        mapping = {k: v for k, v in mapping.items() if not k.startswith('mask_')}
     return mapping
 
 

@@ -11,7 +11,8 @@ from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
 #: Every option that changes the output: row drive, a distorted 4:3 camera, varied looks, a JPEG bag in odom.
 EVERYTHING = dict(trajectory='row', distortion=(-0.1, 0.02, 0.001, -0.001, 0.0), fy_scale=1.02,
                   principal_offset_px=(1.5, -1.0), appearance_variation=0.8, pose_noise_m=0.01, pose_noise_deg=0.5,
-                  bag_image_format='jpeg', world_frame='odom', row_standoff_m=1.2)
+                  bag_image_format='jpeg', world_frame='odom', row_standoff_m=1.2, mask_missed=0.2, mask_false=0.2,
+                  mask_boundary_px=1)
 
 
 def _files(root: Path) -> dict[str, bytes]:
