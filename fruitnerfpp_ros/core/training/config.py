@@ -232,6 +232,9 @@ class InstanceStageConfig(StageSchedule):
     """Samples with a render weight below this are skipped by the instance head."""
     contrastive_weight: float = 1.0
     """lambda_contr, the weight of the contrastive loss."""
+    interior: bool = False
+    """Draw each fruit's pixels from its mask's interior only (``samplers.mask_interior``; a fruit without interior
+    pixels keeps all): a segmenter's boundary a pixel off labels the neighbour's or the leaves' surface."""
 
 
 @dataclass(frozen=True)

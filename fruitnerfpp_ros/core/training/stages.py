@@ -201,7 +201,10 @@ class InstanceStage:
         cfg = config.instance
         self.config = config
         self.iterations = cfg.iterations
-        self.sampler = GroupInstanceSampler(dataset.train_indices, dataset.instance_masks, groups=cfg.groups,
+        masks = dataset.instance_masks
+        if cfg.interior:
+            masks = torch.where(mask_interior(masks, masks > 0), masks, torch.zeros_like(masks))
+        self.sampler = GroupInstanceSampler(dataset.train_indices, masks, groups=cfg.groups,
                                             group_size=cfg.group_size, pixels_per_fruit=cfg.pixels_per_fruit,
                                             min_pixels=config.data.min_fruit_pixels)
 
