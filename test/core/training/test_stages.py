@@ -347,3 +347,25 @@ def test_photometric_stages_draw_their_rays_through_the_scene_box_only(parts: tu
     for with_box, without in zip(build_stages(box_config, dataset, huge)[:2], build_stages(box_config, dataset)[:2]):
         a, b = (s.sampler.sample(500, torch.Generator().manual_seed(2)) for s in (with_box, without))
         assert torch.equal(a.view, b.view) and torch.equal(a.row, b.row) and torch.equal(a.col, b.col)
+
+
+def test_the_instance_stage_draws_from_the_masks_interior_only_when_asked() -> None:
+    """``instance.interior``: no pixel on a fruit mask's boundary is drawn (a segmenter's boundary a pixel off
+    labels the neighbour's surface); a fruit with no interior keeps its pixels."""
+    from types import SimpleNamespace
+
+    from fruitnerfpp_ros.core.training.stages import InstanceStage
+    masks = torch.zeros(2, 24, 24, dtype=torch.int64)
+    masks[:, 2:10, 2:10], masks[:, 2:10, 10:18], masks[:, 14:16, 3:5] = 1, 2, 3  # two touching fruits, a 2x2 one
+    dataset = SimpleNamespace(train_indices=torch.arange(2), instance_masks=masks)
+    boundary = masks.bool() & ~mask_interior(masks, masks.bool())
+    drawn = {}
+    for interior in (False, True):
+        stage = InstanceStage(replace_nested(REFINED, {'instance': {'interior': interior, 'groups': 3}}), dataset)
+        generator = torch.Generator().manual_seed(3)
+        batches = [stage.sampler.sample(generator) for _ in range(20)]
+        drawn[interior] = torch.cat([boundary[b.view, b.row, b.col] for b in batches])
+        labels = torch.cat([masks[b.view, b.row, b.col] for b in batches])
+        # every fruit drawn (the 2x2 one has no interior: it keeps its pixels), none of the background
+        assert set(labels.tolist()) == {1, 2, 3}
+    assert drawn[False].any() and not drawn[True].any()
