@@ -145,7 +145,7 @@ def generate_orchard(config: SynthConfig, out_dir: str | Path, *, bag: str | Pat
     preview_rgb, preview_inst, preview_labels = [], [], []
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9C]))
     depth_rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0x9E]))  # the depth sensor's own stream
-    mask_rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0xA1]))  # the segmenter-like masks' own
+    mask_rng = np.random.default_rng(np.random.SeedSequence([config.seed, 0xA1]))  # the masks' errors: own stream
     per_view = int(np.ceil(config.sparse_points / config.views)) if config.sparse_points else 0
     recorded = _noisy_poses(poses, config)
     pc_points, pc_colors = [], []
