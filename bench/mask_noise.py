@@ -9,7 +9,9 @@ masks it had): how much the masks step of the count (``clustering.masks``) depen
   random places within the box around the view's masks (where a segmenter mistakes leaves for fruit); real masks
   stay on top.
 
-Seeded: the same masks on every run. Nothing here is used by the package.
+Seeded: the same masks on every run. The errors are ``core/synthetic/mask_noise.degrade_instances``' (the
+generator's ``--mask-noise`` without its boundary error); until session 46 this script held its own copy of the
+same model with other random draws, so re-counts made before then do not repeat draw for draw.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ import dataclasses
 import numpy as np
 
 from fruitnerfpp_ros.core.clustering.mask_views import MaskViews
+from fruitnerfpp_ros.core.synthetic.mask_noise import degrade_instances
 
 __all__ = ['noisy_masks']
 
@@ -27,23 +30,6 @@ def noisy_masks(views: MaskViews, dropped: float, false: float, seed: int = 0) -
     """``views`` with its training views' masks corrupted (module doc); the other views are left as they are."""
     rng = np.random.default_rng(seed)
     masks = np.array(views.instance_masks, copy=True)
-    next_id = int(masks.max()) + 1
-    height, width = masks.shape[1:3]
     for view in np.asarray(views.views, np.int64):
-        mask = masks[view]
-        ids, areas = np.unique(mask[mask > 0], return_counts=True)
-        if not len(ids):
-            continue
-        lines, columns = np.nonzero(mask > 0)
-        mask[np.isin(mask, ids[rng.random(len(ids)) < dropped])] = 0
-        radius2 = np.median(areas) / np.pi
-        reach = int(np.ceil(np.sqrt(radius2)))
-        for _ in range(rng.binomial(len(ids), false)):
-            y = rng.integers(lines.min(), lines.max() + 1)
-            x = rng.integers(columns.min(), columns.max() + 1)
-            top, left = max(0, y - reach), max(0, x - reach)      # the disc's window, not the whole image
-            window = mask[top:min(height, y + reach + 1), left:min(width, x + reach + 1)]
-            rows, cols = np.ogrid[top:top + window.shape[0], left:left + window.shape[1]]
-            window[((rows - y) ** 2 + (cols - x) ** 2 <= radius2) & (window == 0)] = next_id
-            next_id += 1
+        masks[view] = degrade_instances(masks[view], rng, missed=dropped, false_rate=false)
     return dataclasses.replace(views, instance_masks=masks)

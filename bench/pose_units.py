@@ -43,9 +43,8 @@ def scaled_copy(source: Path, out: Path, factor: float) -> None:
         gt = json.loads(gt_path.read_text())
         for fruit in gt['fruits']:
             fruit['center'] = [float(v) * factor for v in fruit['center']]
-            for key in ('diameter', 'radius'):
-                if key in fruit:
-                    fruit[key] = float(fruit[key]) * factor
+            if 'diameter' in fruit:
+                fruit['diameter'] = float(fruit['diameter']) * factor
             if 'radii' in fruit:
                 fruit['radii'] = [float(v) * factor for v in fruit['radii']]
         (out / 'gt_fruits.json').write_text(json.dumps(gt, indent=1))
