@@ -6,6 +6,7 @@ import pickle
 
 import pytest
 
+from fruitnerfpp_ros.core.benchmark.blind_suite import BLIND_SEED, draw_blind_scenes
 from fruitnerfpp_ros.core.benchmark.suites import SUITES, BagOptions, SuiteScene, suite_scenes
 from fruitnerfpp_ros.core.synthetic import FRUIT_NAMES, MIXED, build_scene, row_drive
 from fruitnerfpp_ros.errors import ConfigError, SynthError
@@ -28,7 +29,8 @@ def test_suites_have_unique_names_and_their_presets() -> None:
         names = [s.name for s in suite.scenes]
         assert len(names) == len(set(names))
     presets = {name: suite.preset for name, suite in SUITES.items()}
-    assert presets == {'quick': 'cpu', 'cpu': 'cpu', 'gpu': 'default', 'holdout': 'cpu', 'smoke': 'tiny'}
+    assert presets == {'quick': 'cpu', 'cpu': 'cpu', 'gpu': 'default', 'holdout': 'cpu', 'blind': 'cpu',
+                       'smoke': 'tiny'}
 
 
 def test_holdout_suite_shares_no_seed_and_adds_axes() -> None:
@@ -41,6 +43,28 @@ def test_holdout_suite_shares_no_seed_and_adds_axes() -> None:
     assert any(c.trajectory == 'row' and c.camera_pitch_deg < 0 for c in held)
     assert any(s.via_bag and s.synth_config().resolution == (480, 360) for s in SUITES['holdout'].scenes)
     assert any(c.pass_offset_m > 0 and c.pass_offset_deg > 0 for c in held)
+
+
+def test_blind_suite_is_a_fixed_draw_over_every_axis_on_seeds_no_other_suite_uses() -> None:
+    assert draw_blind_scenes() == SUITES['blind'].scenes == draw_blind_scenes(BLIND_SEED)  # the same draw each time
+    assert draw_blind_scenes(BLIND_SEED + 1) != draw_blind_scenes()
+    others = {s.synth_config().seed for name in SUITES if name != 'blind' for s in SUITES[name].scenes}
+    many = draw_blind_scenes(count=200)  # the draw's ranges, over more scenes than the suite holds
+    configs = [s.synth_config() for s in many]
+    assert not {c.seed for c in configs} & others and len({c.seed for c in configs}) == len(configs)
+    assert {c.fruit for c in configs} == {*FRUIT_NAMES, MIXED}
+    assert {c.trajectory for c in configs} == {'row', 'hemisphere'}
+    assert all(20 <= c.count <= 130 and 48 <= c.views <= 64 and max(c.resolution) <= 320 for c in configs)
+    rows = [c for c in configs if c.trajectory == 'row']
+    assert all(1.5 <= c.row_standoff_m <= 3 and 0.8 <= c.camera_height_m <= 2 for c in rows)
+    assert min(c.camera_pitch_deg for c in rows) < 0 < max(c.camera_pitch_deg for c in rows)
+    assert any(any(c.distortion) for c in configs) and any(c.pose_noise_m > 0 for c in configs)
+    assert any(c.pass_offset_m > 0 for c in rows) and any(c.mask_missed > 0 for c in configs)
+    bags = [s for s in many if s.via_bag]
+    assert {s.bag.storage for s in bags} == {'mcap', 'sqlite3'}
+    assert {s.bag.pose_source for s in bags} == {'pose', 'tf'}
+    assert all(s.synth_config().bag_image_format == 'jpeg' for s in bags)
+    assert all(s.covers.startswith(f'{s.synth_config().fruit}, ') for s in many)
 
 
 def test_quick_suite_is_the_four_scenes() -> None:
@@ -91,7 +115,8 @@ def test_suite_scenes_selects_by_name_in_suite_order() -> None:
     chosen = suite_scenes('quick', 'mango_hemi_40, apple_hemi_20')
     assert [s.name for s in chosen] == ['apple_hemi_20', 'mango_hemi_40']
     assert suite_scenes('quick') == SUITES['quick'].scenes
-    with pytest.raises(ConfigError, match="unknown suite 'fast'; expected one of quick, cpu, gpu, holdout, smoke"):
+    with pytest.raises(ConfigError, match="unknown suite 'fast'; expected one of quick, cpu, gpu, holdout, blind, "
+                                          "smoke"):
         suite_scenes('fast')
     with pytest.raises(ConfigError, match='unknown scene.* nope in suite quick; its scenes: apple_hemi_20'):
         suite_scenes('quick', 'apple_hemi_20,nope')
