@@ -45,8 +45,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     acc.add_argument('--suite', choices=SUITE_NAMES, required=True,
                      help='; '.join(f'{s.name}: {len(s.scenes)} scenes, {s.description}' for s in SUITES.values()))
     acc.add_argument('--out', type=Path, required=True, help='output directory (OUT/<scene>/ is replaced)')
-    acc.add_argument('--preset', choices=PRESET_NAMES, help="training preset (default: the suite's: cpu for quick "
-                     'and cpu, default for gpu)')
+    acc.add_argument('--preset', choices=PRESET_NAMES, help="training preset (default: the suite's: tiny for smoke, "
+                     'default for gpu, cpu for the others)')
     acc.add_argument('--masks', choices=MASK_SOURCES, default='gt',
                      help="instance masks of both counters: gt (the dataset's), fallback (the built-in segmenter's, "
                           'as `fruitnerfpp segment`; bag replay: mask_source fallback) or semantic (blobs of the '

@@ -82,7 +82,7 @@ class Suite:
     """A named list of scenes and the training preset it is meant for."""
 
     name: str
-    """``quick``, ``cpu`` or ``gpu``."""
+    """The suite's name (``quick``, ``cpu``, ``holdout``, ``blind``, ``gpu``, ``smoke``)."""
     preset: str
     """Training preset used unless the caller names another."""
     scenes: tuple[SuiteScene, ...]
