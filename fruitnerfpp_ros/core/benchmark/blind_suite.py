@@ -17,7 +17,7 @@ import math
 import random
 from typing import Any
 
-from fruitnerfpp_ros.core.benchmark.scene_types import BagOptions, SuiteScene
+from fruitnerfpp_ros.core.benchmark.scene_types import BagOptions, SuiteScene, row_fields
 
 __all__ = ['BLIND_SEED', 'BLIND_SCENES', 'draw_blind_scenes']
 
@@ -42,8 +42,9 @@ def _draw_one(rng: random.Random, index: int) -> SuiteScene:
         seed=_FIRST_SEED + index)
     axes = [fruit, f'{count} fruits', 'row' if row else 'hemisphere']
     if row:
-        synth.update(trajectory='row', sparse_points=0, row_standoff_m=round(rng.uniform(1.5, 3.0), 2),
-                     camera_height_m=round(rng.uniform(0.8, 2.0), 2), camera_pitch_deg=round(rng.uniform(-5, 10), 1))
+        synth.update(row_fields(row_standoff_m=round(rng.uniform(1.5, 3.0), 2),
+                                camera_height_m=round(rng.uniform(0.8, 2.0), 2),
+                                camera_pitch_deg=round(rng.uniform(-5, 10), 1)))
         axes.append(f"standoff {synth['row_standoff_m']} m, camera {synth['camera_height_m']} m, "
                     f"pitch {synth['camera_pitch_deg']} deg")
     if rng.random() < 0.4:

@@ -12,7 +12,7 @@ from fruitnerfpp_ros.errors import ConfigError
 if TYPE_CHECKING:
     from fruitnerfpp_ros.core.synthetic import SynthConfig
 
-__all__ = ['BagOptions', 'SuiteScene', 'Suite']
+__all__ = ['BagOptions', 'SuiteScene', 'Suite', 'row_fields']
 
 
 @dataclass(frozen=True)
@@ -89,3 +89,8 @@ class Suite:
     """The scenes, in run order."""
     description: str
     """What the suite is for and how long it takes."""
+
+
+def row_fields(**fields: Any) -> dict[str, Any]:
+    """SynthConfig fields of a row drive: no sparse cloud (a robot has no SfM), plus ``fields``."""
+    return {'trajectory': 'row', 'sparse_points': 0, **fields}

@@ -22,18 +22,14 @@ and a note on the axes of variation it covers.
 from __future__ import annotations
 
 from types import MappingProxyType
-from typing import Any, Mapping
+from typing import Mapping
 
 from fruitnerfpp_ros.core.benchmark.blind_suite import draw_blind_scenes
 from fruitnerfpp_ros.core.benchmark.scene_types import BagOptions, Suite, SuiteScene
+from fruitnerfpp_ros.core.benchmark.scene_types import row_fields as _row
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['BagOptions', 'SuiteScene', 'Suite', 'SUITES', 'SUITE_NAMES', 'suite_scenes']
-
-
-def _row(**fields: Any) -> dict[str, Any]:
-    """SynthConfig fields of a row drive: no sparse cloud (a robot has no SfM), plus ``fields``."""
-    return {'trajectory': 'row', 'sparse_points': 0, **fields}
 
 
 _QUICK = (
