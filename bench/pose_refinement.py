@@ -12,7 +12,8 @@ random stream, so images and fruit are identical)::
     python bench/pose_refinement.py --dataset noisy --clean clean --out pr_run --preset cpu [--config over.yaml]
 
 A run on the clean twin itself (``--dataset clean --clean clean``) measures the drift the refinement adds to exact
-poses. Prints one line per pose set and writes ``OUT/pose_errors.json``.
+poses. Prints one line per pose set (the training views', and the held-out views': those the alignment posed on
+the training views' tracks, core/data/pose_resection.py) and writes ``OUT/pose_errors.json``.
 """
 
 from __future__ import annotations
@@ -76,11 +77,12 @@ def main(argv: list[str] | None = None) -> int:
         trained = np.flatnonzero(poses['trained'].numpy())
     truth, cameras = _clean_views(args.clean, list(dataset.file_paths))
     X = load_ground_truth(args.dataset / 'gt_fruits.json').centers
-    views = [cameras[i] for i in trained]
-    report = {name: pose_errors(T[trained], truth[trained], views, X)
+    held = np.setdiff1d(np.arange(len(recorded)), trained)
+    report = {f'{kind}{name}': pose_errors(T[views], truth[views], [cameras[i] for i in views], X)
+              for kind, views in (('', trained), ('held-out ', held)) if len(views)
               for name, T in (('recorded', recorded), ('refined', refined))}
     for name, e in report.items():
-        print(f"{name:9s} rotation {e['rotation_deg_median']:.2f} deg, position {e['position_m_median']:.3f} m, "
+        print(f"{name:18s} rotation {e['rotation_deg_median']:.2f} deg, position {e['position_m_median']:.3f} m, "
               f"fruit reprojection {e['reprojection_px_median']:.1f} px median, {e['reprojection_px_p90']:.1f} p90")
     (args.out / 'pose_errors.json').write_text(json.dumps(report, indent=1))
     return 0

@@ -87,7 +87,8 @@ class PassRegistration:
     """The outcome.
 
     Attributes:
-        moved_views: the later pass's training views (dataset indices), empty when there are no passes.
+        moved_views: the later pass's views (dataset indices: its training views, and when applied its held-out
+            views too, so that they are rendered where the training views are), empty when there are no passes.
         transform: [4, 4] world transform to apply to those views' camera-to-world poses (identity when not
             applied).
         report: figures for the run directory (passes, scores, the offset, applied or why not).
@@ -239,4 +240,16 @@ def register_passes(dataset: SceneDataset, box: np.ndarray, fruit_diameter_m: fl
     transform[:3, :3] = _yaw_rotations(up, yaws[i:i + 1])[0]
     p = pivot.double().cpu().numpy()
     transform[:3, 3] = p - transform[:3, :3] @ p + shifts[i] @ axes
-    return PassRegistration(later, transform, {'applied': True, **figures})
+    held_out = np.asarray(dataset.eval_indices, dtype=np.int64)
+    moved = np.union1d(later, held_out[_looking_across(dataset.T_world_camera.double().numpy()[held_out], up,
+                                                       across)])
+    return PassRegistration(moved, transform, {'applied': True, **figures})
+
+
+def _looking_across(T_world_camera: np.ndarray, up: np.ndarray, across: np.ndarray) -> np.ndarray:
+    """[V] bool: the views that look across the ground along ``across`` (a pass's side, as :func:`split_passes`
+    tells the passes apart)."""
+    forward = -np.asarray(T_world_camera, np.float64).reshape(-1, 4, 4)[:, :3, 2]
+    heading = forward - (forward @ up)[:, None] * up
+    length = np.linalg.norm(heading, axis=1)
+    return (length > 0.3) & (heading @ across > 0)

@@ -27,8 +27,10 @@ import cv2
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.data.bundle_adjustment import BundleProblem, adjust, project, project_with_jacobians
+from fruitnerfpp_ros.core.data.pose_resection import resect_views
 from fruitnerfpp_ros.errors import ConfigError
 
 __all__ = ['PoseAlignmentConfig', 'PoseAlignment', 'align_poses']
@@ -89,15 +91,21 @@ class PoseAlignment:
 
     Attributes:
         correction: [V, 6] float64 per view: rotation (axis times angle, rad, camera frame), translation (m, world).
-        report: figures for ``pose_alignment.json`` (features, pairs, tracks, reprojection before / after).
+        report: figures for ``pose_alignment.json`` (features, pairs, tracks, reprojection before / after, and the
+            held-out views' ``held_out``: views, posed, their reprojection before / after).
     """
 
     correction: np.ndarray
     report: dict
+    tracks: _Tracks | None = None
+    """The tracks adjusted on (views numbered among the aligned ones), None when it kept the recorded poses."""
+    points: np.ndarray | None = None
+    """[P, 3] the tracks' adjusted points, None when it kept the recorded poses."""
 
 
 def align_poses(images: np.ndarray, intrinsics: np.ndarray, T_world_camera: np.ndarray,
-                config: PoseAlignmentConfig, valid: np.ndarray | None = None) -> PoseAlignment:
+                config: PoseAlignmentConfig, valid: np.ndarray | None = None,
+                held_out: np.ndarray | None = None) -> PoseAlignment:
     """Pose corrections that make the views' feature tracks meet.
 
     Args:
@@ -106,11 +114,36 @@ def align_poses(images: np.ndarray, intrinsics: np.ndarray, T_world_camera: np.n
         T_world_camera: [V, 4, 4] camera-to-world poses, OpenGL camera axes, metres.
         config: the alignment's settings.
         valid: optional [V, H, W] bool, False where a pixel holds no data (no features there).
+        held_out: optional [V] bool, the views left out of the tracks and the adjustment and posed on them
+            afterwards (:mod:`pose_resection`; the report's ``held_out``); their correction is zero where that
+            fails.
     """
-    T = np.asarray(T_world_camera, np.float64)
-    K = np.asarray(intrinsics, np.float64)
-    V = len(T)
-    features = [_features(images[v], None if valid is None else valid[v], config) for v in range(V)]
+    T_all = np.asarray(T_world_camera, np.float64)
+    K_all = np.asarray(intrinsics, np.float64)
+    held = np.zeros(len(T_all), bool) if held_out is None else np.asarray(held_out, bool)
+    train = np.flatnonzero(~held)
+    features_all = [_features(images[v], None if valid is None else valid[v], config) for v in range(len(T_all))]
+    result = _align(features_all, train, T_all, K_all, config)
+    if not result.report.get('applied') or not held.any():
+        return result
+    correction, X = result.correction, result.points
+    posed = T_all.copy()
+    posed[train, :3, :3] = T_all[train, :3, :3] @ Rotation.from_rotvec(correction[train, :3]).as_matrix()
+    posed[train, :3, 3] += correction[train, 3:]
+    held_views = np.flatnonzero(held)
+    tracks = result.tracks
+    correction[held_views], figures = resect_views(
+        held_views, features_all, posed, K_all, (tracks.track, train[tracks.view], tracks.feature), X,
+        radius_px=2.0 * config.max_track_error_px, ratio=config.ratio, min_inliers=config.min_inliers,
+        sigma=_prior_sigma(config), robust_px=config.robust_px, rounds=config.rounds)
+    return PoseAlignment(correction, {**result.report, 'held_out': figures})
+
+
+def _align(features_all: list, train: np.ndarray, T_all: np.ndarray, K_all: np.ndarray, config: PoseAlignmentConfig
+           ) -> PoseAlignment:
+    """The alignment of the views ``train`` (corrections [V, 6] of every view, zero outside ``train``)."""
+    features = [features_all[v] for v in train]
+    T, K = T_all[train], K_all[train]
     # The check first, on each view's nearest neighbours only (a quarter of the matching): most datasets stop here.
     tracks = _measured_tracks(features, T, K, config, config.check_neighbours)
     # with all neighbours, about neighbours / check_neighbours times the tracks: too few is too few there as well
@@ -120,15 +153,17 @@ def align_poses(images: np.ndarray, intrinsics: np.ndarray, T_world_camera: np.n
     reason = ('the recorded poses agree with the images' if tracks.agree(config) else
               f'fewer than {config.min_tracks} tracks' if len(tracks.points) < config.min_tracks else None)
     if reason is not None:
-        return PoseAlignment(np.zeros((V, 6)), {**tracks.report, 'applied': False, 'reason': reason})
+        return PoseAlignment(np.zeros((len(T_all), 6)), {**tracks.report, 'applied': False, 'reason': reason})
     report = dict(tracks.report)
     track, view, uv, X = tracks.track, tracks.view, tracks.uv, tracks.points
-    correction, after = _bundle_adjust(T, K, X, track, view, uv, config)
+    correction, X, after = _bundle_adjust(T, K, X, track, view, uv, config)
     angles = np.rad2deg(np.linalg.norm(correction[:, :3], axis=1))
     report.update(applied=True, reprojection_px_after=round(float(np.median(after)), 3),
                   max_rotation_deg=round(float(angles.max()), 4),
                   max_translation_m=round(float(np.linalg.norm(correction[:, 3:], axis=1).max()), 5))
-    return PoseAlignment(correction, report)
+    out = np.zeros((len(T_all), 6))
+    out[train] = correction
+    return PoseAlignment(out, report, tracks, X)
 
 
 @dataclass(frozen=True)
@@ -141,6 +176,8 @@ class _Tracks:
     """[M] view of each observation."""
     uv: np.ndarray
     """[M, 2] pixel of each observation."""
+    feature: np.ndarray
+    """[M] each observation's feature, an index into its view's keypoints."""
     points: np.ndarray
     """[P, 3] each track's point, triangulated from the recorded poses."""
     report: dict
@@ -160,9 +197,9 @@ def _measured_tracks(features: list, T: np.ndarray, K: np.ndarray, config: PoseA
               'pairs': pairs, 'tracks': 0, 'observations': 0, 'reprojection_px_before': None}
     if len(edges) == 0:
         empty = np.zeros(0, np.int64)
-        return _Tracks(empty, empty, np.zeros((0, 2)), np.zeros((0, 3)), report)
+        return _Tracks(empty, empty, np.zeros((0, 2)), empty, np.zeros((0, 3)), report)
     view_of, points_px = _observations(features)
-    track, view, uv = _tracks(edges, view_of, points_px, len(T))
+    track, view, uv, node = _tracks(edges, view_of, points_px, len(T))
     X = _triangulate(T, K, track, view, uv)
     projected, _, in_front = project(T[:, :3, :3], T[:, :3, 3], K, X[track], view)
     error = np.where(in_front, np.linalg.norm(projected - uv, axis=1), np.inf)
@@ -172,7 +209,8 @@ def _measured_tracks(features: list, T: np.ndarray, K: np.ndarray, config: PoseA
     kept_tracks, track = np.unique(track[keep], return_inverse=True)
     report.update(tracks=len(kept_tracks), observations=int(keep.sum()),
                   reprojection_px_before=round(float(np.median(error[keep])), 3) if keep.any() else None)
-    return _Tracks(track, view[keep], uv[keep], X[kept_tracks], report)
+    first = np.cumsum([0] + [len(k) for k, _ in features])[:-1]
+    return _Tracks(track, view[keep], uv[keep], (node - first[view])[keep], X[kept_tracks], report)
 
 
 def _features(image: np.ndarray, valid: np.ndarray | None, config: PoseAlignmentConfig
@@ -237,8 +275,9 @@ def _observations(features: list) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _tracks(edges: np.ndarray, view_of: np.ndarray, points_px: np.ndarray, V: int
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Observations (track id, view, pixel) of the matches' connected components, one feature per view."""
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Observations (track id, view, pixel, global feature index) of the matches' connected components, one
+    feature per view."""
     n = len(view_of)
     graph = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     _, label = connected_components(graph, directed=False)
@@ -248,7 +287,7 @@ def _tracks(edges: np.ndarray, view_of: np.ndarray, points_px: np.ndarray, V: in
     ambiguous = np.unique(track[count[inverse] > 1])
     keep = ~np.isin(track, ambiguous)
     _, track = np.unique(track[keep], return_inverse=True)
-    return track, view[keep], points_px[nodes][keep]
+    return track, view[keep], points_px[nodes][keep], nodes[keep]
 
 
 def _rays(R: np.ndarray, t: np.ndarray, K: np.ndarray, view: np.ndarray, uv: np.ndarray
@@ -272,10 +311,10 @@ def _triangulate(T: np.ndarray, K: np.ndarray, track: np.ndarray, view: np.ndarr
 
 
 def _bundle_adjust(T: np.ndarray, K: np.ndarray, X0: np.ndarray, track: np.ndarray, view: np.ndarray,
-                   uv: np.ndarray, config: PoseAlignmentConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Per-view corrections [V, 6] and the observations' reprojection errors (px) after the adjustment."""
-    sigma = np.r_[np.full(3, np.deg2rad(config.prior_rotation_deg)), np.full(3, config.prior_translation_m)]
-    problem = BundleProblem(T[:, :3, :3], T[:, :3, 3], K, track, view, uv, sigma)
+                   uv: np.ndarray, config: PoseAlignmentConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-view corrections [V, 6], the adjusted points [P, 3] and the observations' reprojection errors (px)
+    after the adjustment."""
+    problem = BundleProblem(T[:, :3, :3], T[:, :3, 3], K, track, view, uv, _prior_sigma(config))
     correction, X = np.zeros((len(T), 6)), X0
     weight = np.ones(len(view))
     for _ in range(config.rounds):  # iteratively reweighted: Cauchy on the reprojections, Gaussian priors
@@ -283,4 +322,9 @@ def _bundle_adjust(T: np.ndarray, K: np.ndarray, X0: np.ndarray, track: np.ndarr
         error, in_front, _, _ = project_with_jacobians(problem, correction, X, jacobians=False)
         after = np.where(in_front, np.linalg.norm(error, axis=1), np.inf)
         weight = np.sqrt(1.0 / (1.0 + (after / config.robust_px) ** 2))
-    return correction, after
+    return correction, X, after
+
+
+def _prior_sigma(config: PoseAlignmentConfig) -> np.ndarray:
+    """[6] the prior's standard deviations of a view's correction (rad x 3, m x 3)."""
+    return np.r_[np.full(3, np.deg2rad(config.prior_rotation_deg)), np.full(3, config.prior_translation_m)]

@@ -337,7 +337,8 @@ class TrainConfig:
     log_every: int = 50
     """Steps between lines of metrics.jsonl."""
     eval_max_views: int = 8
-    """Held-out views rendered for the stage-end evaluation (the first n)."""
+    """Held-out views rendered for the stage-end evaluation (n spread evenly over them, the first and the last
+    included; before session 48 the first n, which on a row drive all lay on the way out)."""
     eval_max_pixels: int = 262_144
     """... each scored on at most this many pixels (every k-th row and column of a larger view): 3 views of
     1280 x 960 took 203-339 s per stage end on the CPU at every pixel (``tiny``), 27-44 s at every 3rd row and

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -16,7 +17,7 @@ from fruitnerfpp_ros.core.rendering.renderer import RenderOutput, RenderSettings
 from fruitnerfpp_ros.core.training.losses import fruit_prototypes
 
 __all__ = ['EvalMetrics', 'ViewRender', 'psnr_from_mse', 'semantic_iou', 'instance_assignment_accuracy',
-           'render_view', 'eval_stride', 'evaluate_views']
+           'render_view', 'eval_stride', 'evaluate_views', 'spread_views']
 
 
 class EvalMetrics(NamedTuple):
@@ -119,6 +120,15 @@ def eval_stride(height: int, width: int, max_pixels: int | None) -> int:
     if max_pixels is None or height * width <= max_pixels:
         return 1
     return math.ceil(math.sqrt(height * width / max_pixels))
+
+
+def spread_views(views, count: int) -> list[int]:
+    """``count`` of ``views`` spread evenly over them, the first and the last included: a row drive's held-out
+    figures then see both passes (its first views are all on the way out)."""
+    views = [int(v) for v in views]
+    if count >= len(views) or count <= 1:
+        return views[:max(count, 0)]
+    return [views[i] for i in np.linspace(0, len(views) - 1, count).round().astype(int)]
 
 
 @torch.no_grad()

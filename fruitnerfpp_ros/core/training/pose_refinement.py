@@ -5,8 +5,9 @@ translation (metres, in the world frame). The corrections start at zero or where
 alignment's, the pass registration's: core/training/pose_start.py), train with the geometry (stages 1 and 2)
 through the photometric loss, and stay fixed in stage 3. The start is applied as given; of what training adds, the
 mean translation over the trained views is removed (the gauge: moving every camera by the same offset would move
-the whole reconstruction away from the world frame the ground truth and the outputs live in). Held-out views keep
-their recorded pose. At the end of stage 2 the run directory gets ``refined_poses.json``
+the whole reconstruction away from the world frame the ground truth and the outputs live in). Held-out views learn
+nothing: they keep their start (the alignment's resection on the training views' tracks, the pass registration's
+move; the recorded pose without either). At the end of stage 2 the run directory gets ``refined_poses.json``
 (:func:`write_refined_poses`).
 """
 
@@ -43,7 +44,7 @@ class PoseRefinement(nn.Module):
     """Learned corrections of the camera-to-world poses of ``trained`` views.
 
     Args:
-        trained: [V] bool, the views whose poses are refined (the training views).
+        trained: [V] bool, the views whose poses are refined (the training views); the others keep ``initial``.
         initial: optional [V, 6] starting corrections (the pose start's), applied as given; zeros by default.
     """
 
@@ -63,8 +64,9 @@ class PoseRefinement(nn.Module):
     def forward(self, T_world_camera: torch.Tensor) -> torch.Tensor:
         """The corrected poses [V, 4, 4] of the recorded ones [V, 4, 4]."""
         mask = self.trained[:, None].to(T_world_camera.dtype)
-        correction = self.correction.to(T_world_camera.dtype) * mask
-        learned = correction[:, 3:] - self.start[:, 3:].to(T_world_camera.dtype) * mask
+        start = self.start.to(T_world_camera.dtype)
+        correction = self.correction.to(T_world_camera.dtype) * mask + start * (1.0 - mask)
+        learned = (correction[:, 3:] - start[:, 3:]) * mask
         shift = correction[:, 3:] - mask * learned.sum(0) / mask.sum().clamp_min(1.0)
         out = T_world_camera.clone()
         out[:, :3, :3] = T_world_camera[:, :3, :3] @ rotation_from_axis_angle(correction[:, :3])
@@ -80,7 +82,7 @@ def write_refined_poses(path: Path, recorded: torch.Tensor, refined: torch.Tenso
         path: output file.
         recorded, refined: [V, 4, 4] camera-to-world poses, OpenGL camera axes (as transforms.json), metres.
         file_paths: the V images, as transforms.json names them.
-        trained: [V] bool, the views that were refined (held-out views keep their recorded pose).
+        trained: [V] bool, the views that were refined (held-out views keep their start).
     """
     recorded = recorded.detach().double().cpu().numpy()
     refined = refined.detach().double().cpu().numpy()

@@ -41,18 +41,23 @@ PASS_REGISTRATION_JSON = 'pass_registration.json'
 
 
 def aligned_poses(dataset: SceneDataset, config: TrainConfig) -> PoseAlignment | None:
-    """The feature-based pose alignment of the training views (``config.pose_alignment``), or None when off."""
+    """The feature-based pose alignment of the training views (``config.pose_alignment``), or None when off; the
+    held-out views are posed on the training views' adjusted tracks afterwards (core/data/pose_resection.py), so
+    that the held-out figures measure the fields rather than the odometry's error."""
     if not config.pose_alignment.enabled:
         return None
     views = dataset.train_indices.numpy()
     log.info('pose alignment: features and matches of %d training views', len(views))
-    images = (dataset.images[views].numpy() * 255.0).round().astype(np.uint8)
-    valid = None if dataset.valid_masks is None else dataset.valid_masks[views].numpy()
-    result = align_poses(images, dataset.intrinsics[views].double().numpy(),
-                         dataset.T_world_camera[views].double().numpy(), config.pose_alignment, valid)
-    correction = np.zeros((dataset.num_views, 6))
-    correction[views] = result.correction
-    correction[views, 3:] -= correction[views, 3:].mean(axis=0)  # its gauge: the views' mean position is kept
+    images = (dataset.images.numpy() * 255.0).round().astype(np.uint8)
+    valid = None if dataset.valid_masks is None else dataset.valid_masks.numpy()
+    held_out = np.ones(dataset.num_views, bool)
+    held_out[views] = False
+    result = align_poses(images, dataset.intrinsics.double().numpy(), dataset.T_world_camera.double().numpy(),
+                         config.pose_alignment, valid, held_out)
+    correction = result.correction.copy()
+    moved = np.any(correction != 0.0, axis=1)
+    moved[views] = True
+    correction[moved, 3:] -= correction[views, 3:].mean(axis=0)  # its gauge: the views' mean position is kept
     log.info('pose alignment: %s', result.report)
     return PoseAlignment(correction, result.report)
 

@@ -27,7 +27,7 @@ from fruitnerfpp_ros.core.device import resolve_device
 from fruitnerfpp_ros.core.progress import ProgressCallback, ProgressEvent
 from fruitnerfpp_ros.core.training.checkpoint import load_checkpoint, save_checkpoint
 from fruitnerfpp_ros.core.training.config import TrainConfig
-from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, psnr_from_mse
+from fruitnerfpp_ros.core.training.metrics import EvalMetrics, evaluate_views, psnr_from_mse, spread_views
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 from fruitnerfpp_ros.core.training.pose_refinement import write_refined_poses
 from fruitnerfpp_ros.core.training.pose_start import PASS_REGISTRATION_JSON, POSE_ALIGNMENT_JSON, start_poses
@@ -371,10 +371,14 @@ def _finish_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDat
     """Held-out evaluation, the stage-end log line and summary; moves the counters to the next stage."""
     model.field.encoding.open_levels(1.0)  # every level from here on (coarse_to_fine_fraction 1 ends just short)
     model.field.eval()
-    eval_views = [int(v) for v in dataset.eval_indices[:config.eval_max_views]]
+    eval_views = spread_views(dataset.eval_indices, config.eval_max_views)
     # the heads a stage has not trained yet are not rendered (their figures are NaN: null in metrics.jsonl)
     started = time.perf_counter()
-    metrics = evaluate_views(model.field, model.grid, dataset, eval_views, model.settings, config.render.chunk_rays,
+    # rendered from the poses the model uses: with a pose start the held-out views' are the alignment's resection
+    # and the pass registration's move (before session 48 the recorded ones: the figures measured the odometry)
+    posed = dataset if model.pose_refinement is None else dataclasses.replace(
+        dataset, T_world_camera=model.current_poses().detach().to('cpu', dataset.T_world_camera.dtype))
+    metrics = evaluate_views(model.field, model.grid, posed, eval_views, model.settings, config.render.chunk_rays,
                              semantic=stage.name != 'geometry', instance=stage.name == 'instance',
                              max_pixels=config.eval_max_pixels)
     evaluate_s = time.perf_counter() - started

@@ -10,7 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 from scipy.spatial.transform import Rotation
 
 from fruitnerfpp_ros.core.config_io import load_config, replace_nested
@@ -23,6 +22,7 @@ from fruitnerfpp_ros.core.evaluation.ground_truth import load_ground_truth
 from fruitnerfpp_ros.core.evaluation.pose_errors import pose_errors
 from fruitnerfpp_ros.core.synthetic import SynthConfig, generate_orchard
 from fruitnerfpp_ros.core.training import TrainConfig, train
+from fruitnerfpp_ros.core.training.metrics import evaluate_views
 from fruitnerfpp_ros.core.training.trained_scene import load_trained_scene
 from fruitnerfpp_ros.errors import ConfigError
 from test.core.training.stand_in_scene import make_sphere_scene
@@ -84,9 +84,42 @@ def test_a_track_with_two_features_in_one_view_is_dropped() -> None:
     view_of = np.array([0, 0, 1, 2, 1])
     points = np.arange(10, dtype=np.float64).reshape(5, 2)
     edges = np.array([[0, 2], [2, 1], [3, 4]])
-    track, view, uv = pose_alignment._tracks(edges, view_of, points, 3)
-    assert track.tolist() == [0, 0] and sorted(view.tolist()) == [1, 2]
+    track, view, uv, feature = pose_alignment._tracks(edges, view_of, points, 3)
+    assert track.tolist() == [0, 0] and sorted(view.tolist()) == [1, 2] and feature.tolist() == [3, 4]
     np.testing.assert_array_equal(uv, points[[3, 4]])
+
+
+def test_held_out_views_are_posed_on_the_training_views_tracks_and_shape_none(twins: tuple[Path, Path]) -> None:
+    """Every 8th view held out: its pose is solved on the training views' adjusted tracks (before session 48 it
+    kept the odometry's, and its held-out figures measured the noise); the training views' corrections are what
+    the alignment of the training views alone gives (a held-out image adds no track)."""
+    noisy, clean = twins
+    data = load_dataset(noisy, eval_every=0)
+    T = data.T_world_camera.double().numpy()
+    images = (data.images.numpy() * 255).round().astype(np.uint8)
+    K = data.intrinsics.double().numpy()
+    held = np.arange(len(T)) % 8 == 0
+    config = PoseAlignmentConfig(enabled=True)
+    result = align_poses(images, K, T, config, held_out=held)
+    alone = align_poses(images[~held], K[~held], T[~held], config)
+    np.testing.assert_array_equal(result.correction[~held], alone.correction)
+    figures = result.report['held_out']
+    assert figures['views'] == held.sum() and figures['posed'] >= held.sum() - 1, figures
+    assert figures['reprojection_px_after'] < figures['reprojection_px_before'], figures
+    correction = result.correction.copy()
+    correction[:, 3:] -= correction[~held, 3:].mean(0)  # the gauge of aligned_poses: the training views' mean
+    posed = T.copy()
+    posed[:, :3, :3] = T[:, :3, :3] @ Rotation.from_rotvec(correction[:, :3]).as_matrix()
+    posed[:, 3:] = T[:, 3:]
+    posed[:, :3, 3] = T[:, :3, 3] + correction[:, 3:]
+    truth = load_dataset(clean, eval_every=0).T_world_camera.double().numpy()
+    transforms = read_transforms(noisy)
+    cameras = [frame.intrinsics or transforms.intrinsics for frame in transforms.frames]
+    centres = np.asarray(load_ground_truth(noisy / 'gt_fruits.json').centers)
+    views = np.flatnonzero(held)
+    before = pose_errors(T[views], truth[views], [cameras[v] for v in views], centres)['reprojection_px_median']
+    after = pose_errors(posed[views], truth[views], [cameras[v] for v in views], centres)['reprojection_px_median']
+    assert before > 4.0 and after < 0.6 * before, (before, after, figures)
 
 
 def test_training_starts_from_the_alignment(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -99,24 +132,45 @@ def test_training_starts_from_the_alignment(tmp_path: Path, monkeypatch: pytest.
     wanted[:, 3] = np.linspace(-0.01, 0.01, len(views))
     calls = []
 
+    held_out = np.setdiff1d(np.arange(data.num_views), views)
+    resected = np.zeros((len(held_out), 6))
+    resected[:, 0] = np.deg2rad(0.3)
+    resected[:, 4] = 0.02
+    every = np.zeros((data.num_views, 6))
+    every[views], every[held_out] = wanted, resected
+
     def stub(images: np.ndarray, intrinsics: np.ndarray, T: np.ndarray, config: PoseAlignmentConfig,
-             valid: np.ndarray | None = None) -> PoseAlignment:
-        calls.append(len(images))
-        return PoseAlignment(wanted, {'applied': True})
+             valid: np.ndarray | None = None, held: np.ndarray | None = None) -> PoseAlignment:
+        calls.append((len(images), np.flatnonzero(held).tolist()))
+        return PoseAlignment(every, {'applied': True})
 
     monkeypatch.setattr('fruitnerfpp_ros.core.training.pose_start.align_poses', stub)
+    evaluated = []
+
+    def evaluate(field, grid, dataset, views, *args, **kwargs):
+        evaluated.append((views, dataset.T_world_camera.clone()))
+        return evaluate_views(field, grid, dataset, views, *args, **kwargs)
+
+    monkeypatch.setattr('fruitnerfpp_ros.core.training.trainer.evaluate_views', evaluate)
     config = replace_nested(MICRO, {'pose_alignment': {'enabled': True}, 'geometry': {'pose_lr': 0.0}})
     train(scene, tmp_path / 'run', config, device='cpu')
-    assert calls == [len(views)]  # the training views only
+    assert calls == [(data.num_views, held_out.tolist())]  # every view; the held-out ones named
     assert json.loads((tmp_path / 'run' / 'pose_alignment.json').read_text()) == {'applied': True}
     trained = load_trained_scene(tmp_path / 'run', device='cpu')
     corrections = trained.pose_corrections.correction.detach().double().numpy()
     np.testing.assert_allclose(corrections[views], wanted, atol=1e-7)
-    held_out = np.setdiff1d(np.arange(data.num_views), views)
-    poses = trained.poses(data.T_world_camera)
-    assert torch.equal(poses[held_out], data.T_world_camera[held_out])  # held-out views keep their recorded pose
-    expected = _corrected(data.T_world_camera[views].double().numpy(), wanted)
-    np.testing.assert_allclose(poses[views].double().numpy(), expected, atol=1e-5)
+    poses = trained.poses(data.T_world_camera).double().numpy()
+    # the held-out views are where the alignment posed them, under the training views' gauge (a mean of 0 here)
+    recorded = data.T_world_camera.double().numpy()
+    np.testing.assert_allclose(poses[held_out, :3, 3], recorded[held_out, :3, 3] + resected[:, 3:], atol=1e-6)
+    np.testing.assert_allclose(poses[held_out, :3, :3], recorded[held_out, :3, :3]
+                               @ Rotation.from_rotvec(resected[:, :3]).as_matrix(), atol=1e-6)
+    expected = _corrected(recorded[views], wanted)
+    np.testing.assert_allclose(poses[views], expected, atol=1e-5)
+    # the held-out figures are rendered from those poses (before session 48 from the recorded ones)
+    assert len(evaluated) == 3 and all(v and set(v) <= set(held_out.tolist()) for v, _ in evaluated)
+    for _, rendered in evaluated:
+        np.testing.assert_allclose(rendered[held_out].double().numpy(), poses[held_out], atol=1e-6)
 
 
 @pytest.mark.parametrize('aligned, registered', [(False, False), (True, False), (False, True)])
@@ -129,11 +183,12 @@ def test_poses_are_refined_where_the_alignment_or_the_registration_found_them_of
     alignment, so a moved pass was not refined (the third case failed)."""
     scene = make_sphere_scene(tmp_path / 'spheres', views=10, size=32, fruits=6, write_ply=True)
     views = load_dataset(scene, eval_every=MICRO.data.eval_every).train_indices.numpy()
-    start = np.zeros((views.max() + 1, 6))
+    start = np.zeros((len(load_dataset(scene).images), 6))
     if aligned:
         start[views, 3] = np.linspace(-0.01, 0.01, len(views))
+    aligned_start = start.copy()
     monkeypatch.setattr('fruitnerfpp_ros.core.training.pose_start.align_poses',
-                        lambda images, *args, **kwargs: PoseAlignment(start[views], {'applied': aligned}))
+                        lambda images, *args, **kwargs: PoseAlignment(aligned_start, {'applied': aligned}))
     later = views[len(views) // 2:]
     shift = np.eye(4)
     shift[0, 3] = 0.005 if registered else 0.0

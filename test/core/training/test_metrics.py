@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from fruitnerfpp_ros.core.training.metrics import instance_assignment_accuracy
+from fruitnerfpp_ros.core.training.metrics import instance_assignment_accuracy, spread_views
 
 
 def _view(fruits: int, pixels: int = 20) -> torch.Tensor:
@@ -36,3 +36,12 @@ def test_swapped_pixels_lose_their_credit() -> None:
     emb[7:10] = torch.nn.functional.one_hot(torch.tensor([2, 2, 2]), 4).float()  # 3 pixels of fruit 1 look like 2
     credit, _, total = instance_assignment_accuracy(emb, mask)
     assert credit == pytest.approx(17.0) and total == 20
+
+
+def test_the_evaluated_held_out_views_are_spread_over_the_drive() -> None:
+    """A row drive's held-out views 0, 8 ... 48 with views 28-55 on the way back: three evaluated views must
+    include the return pass (the first three, evaluated before session 48, were all on the way out)."""
+    held = list(range(0, 56, 8))
+    assert spread_views(held, 3) == [0, 24, 48]
+    assert spread_views(held, 8) == held and spread_views(held, 1) == [0] and spread_views(held, 0) == []
+    assert spread_views([5, 9], 2) == [5, 9] and len(set(spread_views(range(0, 800, 8), 8))) == 8

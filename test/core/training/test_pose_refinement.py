@@ -77,6 +77,24 @@ def test_the_start_is_applied_as_given_and_only_what_training_adds_is_under_the_
     assert torch.equal(again(poses), refinement(poses))
 
 
+def test_a_held_out_view_keeps_its_start_and_learns_nothing() -> None:
+    """The pose alignment poses the held-out views on the training views' tracks (core/data/pose_resection.py):
+    that start is applied, is not under the training views' gauge, and training moves nothing of it (before
+    session 48 a held-out view's start was dropped: it was rendered from its recorded pose)."""
+    poses = torch.eye(4).repeat(3, 1, 1)
+    start = np.zeros((3, 6))
+    start[2] = [0.0, 0.0, 0.01, 0.0, 0.03, 0.0]
+    refinement = PoseRefinement(torch.tensor([True, True, False]), start)
+    with torch.no_grad():
+        refinement.correction[0, 3:] += torch.tensor([0.02, 0.0, 0.0])   # training adds 2 cm to one view ...
+        refinement.correction[2] += 0.5                                  # ... and nothing to the held-out one
+    corrected = refinement(poses).detach()
+    np.testing.assert_allclose(corrected[2, :3, 3].numpy(), [0.0, 0.03, 0.0], atol=1e-7)
+    np.testing.assert_allclose(corrected[2, :3, :3].numpy(),
+                               rotation_from_axis_angle(torch.tensor([[0.0, 0.0, 0.01]]))[0].numpy(), atol=1e-7)
+    np.testing.assert_allclose(corrected[:2, :3, 3].numpy(), [[0.01, 0, 0], [-0.01, 0, 0]], atol=1e-7)
+
+
 def _corrections(run: Path) -> torch.Tensor:
     return load_checkpoint(RunDir(run).latest_checkpoint)['poses']['correction']
 
