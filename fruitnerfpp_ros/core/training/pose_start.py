@@ -174,8 +174,11 @@ def pose_start_lines(run_dir: str | Path) -> list[str]:
     lines = []
     aligned = read(POSE_ALIGNMENT_JSON)
     if aligned is not None:
+        held = aligned.get('held_out') or {}
         lines.append(f"poses aligned to the images: tracks' reprojection {aligned.get('reprojection_px_before')} -> "
-                     f"{aligned.get('reprojection_px_after')} px" if aligned.get('applied') else
+                     f"{aligned.get('reprojection_px_after')} px" + (
+                         f"; held-out views posed on them: {held['posed']} of {held['views']}" if held else '')
+                     if aligned.get('applied') else
                      f"poses kept by the alignment: {aligned.get('reason', 'no correction')}")
     passes = read(PASS_REGISTRATION_JSON)
     if passes is not None:

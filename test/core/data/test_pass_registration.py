@@ -157,3 +157,8 @@ def test_the_run_says_what_its_pose_start_did(tmp_path: Path) -> None:
         "(its fruit meet the first pass's 2.30x more)"]
     (tmp_path / PASS_REGISTRATION_JSON).write_text(json.dumps({'applied': False, 'reason': 'one pass only'}))
     assert pose_start_lines(tmp_path)[1] == 'return pass kept: one pass only'
+    (tmp_path / POSE_ALIGNMENT_JSON).write_text(json.dumps(
+        {'applied': True, 'reprojection_px_before': 1.557, 'reprojection_px_after': 0.149,
+         'held_out': {'views': 8, 'posed': 7, 'reprojection_px_before': 5.77, 'reprojection_px_after': 1.34}}))
+    assert pose_start_lines(tmp_path)[0] == ("poses aligned to the images: tracks' reprojection 1.557 -> 0.149 px; "
+                                             'held-out views posed on them: 7 of 8')
