@@ -122,10 +122,17 @@ def align_poses(images: np.ndarray, intrinsics: np.ndarray, T_world_camera: np.n
     K_all = np.asarray(intrinsics, np.float64)
     held = np.zeros(len(T_all), bool) if held_out is None else np.asarray(held_out, bool)
     train = np.flatnonzero(~held)
-    features_all = [_features(images[v], None if valid is None else valid[v], config) for v in range(len(T_all))]
+    features_all: list = [None] * len(T_all)
+
+    def describe(views: np.ndarray) -> None:
+        for v in views:
+            features_all[v] = _features(images[v], None if valid is None else valid[v], config)
+
+    describe(train)
     result = _align(features_all, train, T_all, K_all, config)
     if not result.report.get('applied') or not held.any():
         return result
+    describe(np.flatnonzero(held))  # only once the training views were corrected: most datasets stop before
     correction, X = result.correction, result.points
     posed = T_all.copy()
     posed[train, :3, :3] = T_all[train, :3, :3] @ Rotation.from_rotvec(correction[train, :3]).as_matrix()
