@@ -40,12 +40,20 @@ def twins(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     return root / 'noisy', root / 'clean'
 
 
-def _align(dataset_dir: Path) -> tuple[PoseAlignment, np.ndarray]:
-    data = load_dataset(dataset_dir, eval_every=0)
+@pytest.fixture(scope='module')
+def aligned(twins: tuple[Path, Path]) -> dict:
+    """The noisy row aligned with every 8th view held out, and its training views aligned by themselves (the two
+    alignments the tests below share: about 10 s each)."""
+    noisy, clean = twins
+    data = load_dataset(noisy, eval_every=0)
     T = data.T_world_camera.double().numpy()
-    result = align_poses((data.images.numpy() * 255).round().astype(np.uint8), data.intrinsics.double().numpy(), T,
-                         PoseAlignmentConfig(enabled=True))
-    return result, T
+    images = (data.images.numpy() * 255).round().astype(np.uint8)
+    K = data.intrinsics.double().numpy()
+    held = np.arange(len(T)) % 8 == 0
+    config = PoseAlignmentConfig(enabled=True)
+    return {'T': T, 'truth': load_dataset(clean, eval_every=0).T_world_camera.double().numpy(), 'held': held,
+            'with_held_out': align_poses(images, K, T, config, held_out=held),
+            'training_views': align_poses(images[~held], K[~held], T[~held], config)}
 
 
 def _corrected(T: np.ndarray, correction: np.ndarray) -> np.ndarray:
@@ -55,26 +63,29 @@ def _corrected(T: np.ndarray, correction: np.ndarray) -> np.ndarray:
     return out
 
 
-def _fruit_px(T: np.ndarray, truth: np.ndarray, dataset_dir: Path) -> float:
-    """Median distance (px) between the fruit centres projected with poses ``T`` and with the true poses."""
+def _fruit_px(T: np.ndarray, truth: np.ndarray, dataset_dir: Path, views: np.ndarray) -> float:
+    """Median distance (px) between the fruit centres projected into ``views`` with poses ``T`` [len(views)] and
+    with the true poses."""
     transforms = read_transforms(dataset_dir)
     cameras = [frame.intrinsics or transforms.intrinsics for frame in transforms.frames]
     centres = np.asarray(load_ground_truth(dataset_dir / 'gt_fruits.json').centers)
-    return pose_errors(T, truth, cameras, centres)['reprojection_px_median']
+    return pose_errors(T, truth[views], [cameras[v] for v in views], centres)['reprojection_px_median']
 
 
-def test_the_alignment_undoes_most_of_the_odometry_noise(twins: tuple[Path, Path]) -> None:
-    noisy, clean = twins
-    result, T = _align(noisy)
-    truth = load_dataset(clean, eval_every=0).T_world_camera.double().numpy()
-    before, after = _fruit_px(T, truth, noisy), _fruit_px(_corrected(T, result.correction), truth, noisy)
+def test_the_alignment_undoes_most_of_the_odometry_noise(twins: tuple[Path, Path], aligned: dict) -> None:
+    result, views = aligned['training_views'], np.flatnonzero(~aligned['held'])
+    T = aligned['T'][views]
+    before = _fruit_px(T, aligned['truth'], twins[0], views)
+    after = _fruit_px(_corrected(T, result.correction), aligned['truth'], twins[0], views)
     assert result.report['applied'] and result.report['tracks'] >= 200
     assert result.report['reprojection_px_before'] > 1.0 > result.report['reprojection_px_after']
     assert before > 4.0 and after < 0.6 * before, (before, after, result.report)
 
 
 def test_exact_poses_are_kept(twins: tuple[Path, Path]) -> None:
-    result, _ = _align(twins[1])
+    data = load_dataset(twins[1], eval_every=0)
+    result = align_poses((data.images.numpy() * 255).round().astype(np.uint8), data.intrinsics.double().numpy(),
+                         data.T_world_camera.double().numpy(), PoseAlignmentConfig(enabled=True))
     assert not result.report['applied'] and result.report['reason'] == 'the recorded poses agree with the images'
     assert result.report['reprojection_px_before'] < 0.5 and not result.correction.any()
 
@@ -89,20 +100,13 @@ def test_a_track_with_two_features_in_one_view_is_dropped() -> None:
     np.testing.assert_array_equal(uv, points[[3, 4]])
 
 
-def test_held_out_views_are_posed_on_the_training_views_tracks_and_shape_none(twins: tuple[Path, Path]) -> None:
+def test_held_out_views_are_posed_on_the_training_views_tracks_and_shape_none(twins: tuple[Path, Path],
+                                                                              aligned: dict) -> None:
     """Every 8th view held out: its pose is solved on the training views' adjusted tracks (before session 48 it
     kept the odometry's, and its held-out figures measured the noise); the training views' corrections are what
     the alignment of the training views alone gives (a held-out image adds no track)."""
-    noisy, clean = twins
-    data = load_dataset(noisy, eval_every=0)
-    T = data.T_world_camera.double().numpy()
-    images = (data.images.numpy() * 255).round().astype(np.uint8)
-    K = data.intrinsics.double().numpy()
-    held = np.arange(len(T)) % 8 == 0
-    config = PoseAlignmentConfig(enabled=True)
-    result = align_poses(images, K, T, config, held_out=held)
-    alone = align_poses(images[~held], K[~held], T[~held], config)
-    np.testing.assert_array_equal(result.correction[~held], alone.correction)
+    T, held, result = aligned['T'], aligned['held'], aligned['with_held_out']
+    np.testing.assert_array_equal(result.correction[~held], aligned['training_views'].correction)
     figures = result.report['held_out']
     assert figures['views'] == held.sum() and figures['posed'] >= held.sum() - 1, figures
     assert figures['reprojection_px_after'] < figures['reprojection_px_before'], figures
@@ -110,15 +114,10 @@ def test_held_out_views_are_posed_on_the_training_views_tracks_and_shape_none(tw
     correction[:, 3:] -= correction[~held, 3:].mean(0)  # the gauge of aligned_poses: the training views' mean
     posed = T.copy()
     posed[:, :3, :3] = T[:, :3, :3] @ Rotation.from_rotvec(correction[:, :3]).as_matrix()
-    posed[:, 3:] = T[:, 3:]
     posed[:, :3, 3] = T[:, :3, 3] + correction[:, 3:]
-    truth = load_dataset(clean, eval_every=0).T_world_camera.double().numpy()
-    transforms = read_transforms(noisy)
-    cameras = [frame.intrinsics or transforms.intrinsics for frame in transforms.frames]
-    centres = np.asarray(load_ground_truth(noisy / 'gt_fruits.json').centers)
     views = np.flatnonzero(held)
-    before = pose_errors(T[views], truth[views], [cameras[v] for v in views], centres)['reprojection_px_median']
-    after = pose_errors(posed[views], truth[views], [cameras[v] for v in views], centres)['reprojection_px_median']
+    before = _fruit_px(T[views], aligned['truth'], twins[0], views)
+    after = _fruit_px(posed[views], aligned['truth'], twins[0], views)
     assert before > 4.0 and after < 0.6 * before, (before, after, figures)
 
 
