@@ -14,7 +14,8 @@ first, from the images alone, as a robot integrator would run COLMAP with pose p
    Jacobians) of a 6-vector per view, the same correction :class:`PoseRefinement` learns (a rotation in the camera's
    frame, a translation in the world's), and the track points, with a Gaussian prior on each correction
    (``prior_rotation_deg``, ``prior_translation_m``) that holds the gauge and the views the tracks do not reach;
-   ``rounds`` adjustments, each weighing the observations by a Cauchy weight of the last one's reprojection error.
+   ``rounds`` adjustments, each weighing the observations by a Cauchy weight of the last one's reprojection error;
+6. the held-out views, left out of steps 2-5, posed on the adjusted tracks (:mod:`pose_resection`).
 
 The result initialises the geometry stage's pose corrections (``core/training/model.py``).
 """
