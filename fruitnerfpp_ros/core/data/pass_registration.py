@@ -36,6 +36,11 @@ from fruitnerfpp_ros.errors import ConfigError
 __all__ = ['PassRegistrationConfig', 'PassRegistration', 'split_passes', 'register_passes']
 
 
+#: A view looks across the ground when its viewing direction projected on the ground is at least this long (it is
+#: within about 73 deg of level).
+_LEVEL = 0.3
+
+
 @dataclass(frozen=True)
 class PassRegistrationConfig:
     """Registration of a row drive's return pass onto its first pass (see the module docstring)."""
@@ -112,15 +117,13 @@ def split_passes(T_world_camera: np.ndarray, views: np.ndarray, config: PassRegi
         T_world_camera: [V, 4, 4] camera-to-world poses, OpenGL camera axes (the camera looks along -z, y up).
         views: the views to split (dataset indices).
     """
-    R = np.asarray(T_world_camera, np.float64)[views, :3, :3]
-    up = R[:, :, 1].mean(0)
+    T = np.asarray(T_world_camera, np.float64)[views]
+    up = T[:, :3, 1].mean(0)
     if np.linalg.norm(up) < 0.5:
         return 'the cameras share no up direction'
     up /= np.linalg.norm(up)
-    forward = -R[:, :, 2]
-    heading = forward - (forward @ up)[:, None] * up
-    length = np.linalg.norm(heading, axis=1)
-    level = length > 0.3
+    heading, length = _headings(T, up)
+    level = length > _LEVEL
     if level.sum() < 2 * config.min_pass_views:
         return 'too few views look across the ground'
     heading = heading[level] / length[level, None]
@@ -246,10 +249,16 @@ def register_passes(dataset: SceneDataset, box: np.ndarray, fruit_diameter_m: fl
     return PassRegistration(moved, transform, {'applied': True, **figures})
 
 
+def _headings(T_world_camera: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The views' viewing directions projected on the ground [V, 3] (OpenGL axes: the camera looks along -z) and
+    their lengths [V] (1 for a level camera, 0 looking straight up or down)."""
+    forward = -np.asarray(T_world_camera, np.float64).reshape(-1, 4, 4)[:, :3, 2]
+    heading = forward - (forward @ up)[:, None] * up
+    return heading, np.linalg.norm(heading, axis=1)
+
+
 def _looking_across(T_world_camera: np.ndarray, up: np.ndarray, across: np.ndarray) -> np.ndarray:
     """[V] bool: the views that look across the ground along ``across`` (a pass's side, as :func:`split_passes`
     tells the passes apart)."""
-    forward = -np.asarray(T_world_camera, np.float64).reshape(-1, 4, 4)[:, :3, 2]
-    heading = forward - (forward @ up)[:, None] * up
-    length = np.linalg.norm(heading, axis=1)
-    return (length > 0.3) & (heading @ across > 0)
+    heading, length = _headings(T_world_camera, up)
+    return (length > _LEVEL) & (heading @ across > 0)

@@ -217,8 +217,8 @@ def _measured_tracks(features: list, T: np.ndarray, K: np.ndarray, config: PoseA
     kept_tracks, track = np.unique(track[keep], return_inverse=True)
     report.update(tracks=len(kept_tracks), observations=int(keep.sum()),
                   reprojection_px_before=round(float(np.median(error[keep])), 3) if keep.any() else None)
-    first = np.cumsum([0] + [len(k) for k, _ in features])[:-1]
-    return _Tracks(track, view[keep], uv[keep], (node - first[view])[keep], X[kept_tracks], report)
+    return _Tracks(track, view[keep], uv[keep], (node - _first_features(features)[view])[keep], X[kept_tracks],
+                   report)
 
 
 def _features(image: np.ndarray, valid: np.ndarray | None, config: PoseAlignmentConfig
@@ -251,7 +251,7 @@ def _neighbours(T: np.ndarray, count: int) -> list[tuple[int, int]]:
 def _matches(features: list, T: np.ndarray, config: PoseAlignmentConfig, neighbours: int
              ) -> tuple[np.ndarray, int]:
     """Geometrically verified matches as pairs of global feature indices [M, 2], and the number of view pairs."""
-    offsets = np.cumsum([0] + [len(k) for k, _ in features])
+    offsets = _first_features(features)
     matcher = cv2.BFMatcher(cv2.NORM_L2)
     edges, pairs = [], 0
     for i, j in _neighbours(T, neighbours):
@@ -274,6 +274,11 @@ def _matches(features: list, T: np.ndarray, config: PoseAlignmentConfig, neighbo
         edges.append(np.stack([offsets[i] + qi[ok], offsets[j] + tj[ok]], 1))
         pairs += 1
     return (np.concatenate(edges) if edges else np.zeros((0, 2), np.int64)), pairs
+
+
+def _first_features(features: list) -> np.ndarray:
+    """[V] the global index of each view's first feature (the features of all views numbered in view order)."""
+    return np.cumsum([0] + [len(k) for k, _ in features])[:-1]
 
 
 def _observations(features: list) -> tuple[np.ndarray, np.ndarray]:

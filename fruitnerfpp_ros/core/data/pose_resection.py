@@ -129,31 +129,36 @@ def _solve(uv: np.ndarray, X: np.ndarray, T: np.ndarray, k: np.ndarray, sigma: n
         e, in_front, _, _ = project_with_jacobians(problem, c[None], X, jacobians=False)
         return np.where(in_front, np.linalg.norm(e, axis=1), np.inf)
 
-    def cost(c: np.ndarray, w: np.ndarray) -> float:
-        return float((w * errors(c) ** 2).sum() + (prior * c ** 2).sum())
+    def cost(c: np.ndarray, error: np.ndarray, w: np.ndarray) -> float:
+        """The weighted squared reprojections and the prior; inf where a weighted match went behind the camera."""
+        if not np.isfinite(error[w > 0]).all():
+            return np.inf
+        return float((w[w > 0] * error[w > 0] ** 2).sum() + (prior * c ** 2).sum())
 
-    first = errors(np.zeros(6))
     c = np.zeros(6)
+    first = error = errors(c)
     for _ in range(rounds):
-        w = np.where(np.isfinite(errors(c)), 1.0 / (1.0 + (errors(c) / robust_px) ** 2), 0.0)
-        damping = 1e-3
+        w = np.where(np.isfinite(error), 1.0 / (1.0 + (error / robust_px) ** 2), 0.0)
+        current, damping, system = cost(c, error, w), 1e-3, None
         for _ in range(_STEPS):
-            e, in_front, J, _ = project_with_jacobians(problem, c[None], X)
-            wf = np.where(in_front, w, 0.0)
-            e = np.where(in_front[:, None], e, 0.0)
-            A = np.einsum('m,mki,mkj->ij', wf, J, J) + np.diag(prior)
-            b = np.einsum('m,mki,mk->i', wf, J, e) + prior * c
+            if system is None:  # the normal equations at c (again only once a step was taken)
+                e, in_front, J, _ = project_with_jacobians(problem, c[None], X)
+                wf, e = np.where(in_front, w, 0.0), np.where(in_front[:, None], e, 0.0)
+                system = (np.einsum('m,mki,mkj->ij', wf, J, J) + np.diag(prior),
+                          np.einsum('m,mki,mk->i', wf, J, e) + prior * c)
+            A, b = system
             step = -np.linalg.solve(A + damping * np.diag(np.diag(A)), b)
-            if cost(c + step, w) < cost(c, w):
-                c, damping = c + step, damping * 0.3
+            trial_error = errors(c + step)
+            trial = cost(c + step, trial_error, w)
+            if trial < current:
+                c, error, current, system, damping = c + step, trial_error, trial, None, damping * 0.3
                 if np.abs(step).max() < 1e-9:
                     break
             else:
                 damping *= 10.0
                 if damping > 1e6:
                     break
-    last = errors(c)
-    held_before, held_after = first < inlier_px, last < inlier_px
+    held_before, held_after = first < inlier_px, error < inlier_px
     if held_after.sum() <= held_before.sum():
         return None
-    return c, float(np.median(first[held_after])), float(np.median(last[held_after]))
+    return c, float(np.median(first[held_after])), float(np.median(error[held_after]))

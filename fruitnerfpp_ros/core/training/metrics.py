@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Iterable, NamedTuple
 
 import numpy as np
 import torch
@@ -122,7 +122,7 @@ def eval_stride(height: int, width: int, max_pixels: int | None) -> int:
     return math.ceil(math.sqrt(height * width / max_pixels))
 
 
-def spread_views(views, count: int) -> list[int]:
+def spread_views(views: Iterable[int] | torch.Tensor, count: int) -> list[int]:
     """``count`` of ``views`` spread evenly over them, the first and the last included: a row drive's held-out
     figures then see both passes (its first views are all on the way out)."""
     views = [int(v) for v in views]
