@@ -36,8 +36,8 @@ import torch.nn.functional as F
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['ScaleConfig', 'SceneScale', 'FruitVotes', 'dilate_square', 'estimate_scene_scale', 'fruit_voxel_mask',
-           'vote_fruit_masks']
+__all__ = ['ScaleConfig', 'SceneScale', 'SceneVotes', 'FruitVotes', 'dilate_square', 'estimate_scene_scale',
+           'fruit_votes', 'fruit_voxel_mask', 'project_points', 'vote_fruit_masks']
 
 
 @dataclass(frozen=True)
@@ -170,8 +170,8 @@ def _grid(box: np.ndarray, resolution: int, device: torch.device) -> tuple[torch
     return torch.stack(torch.meshgrid(*axes, indexing='ij'), -1).reshape(-1, 3), voxel, shape
 
 
-def _project(centres: torch.Tensor, T_world_camera: torch.Tensor, K: torch.Tensor, width: int, height: int
-             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+def project_points(centres: torch.Tensor, T_world_camera: torch.Tensor, K: torch.Tensor, width: int, height: int
+                   ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
     """(pixel column, row, depth along the optical axis, inside the image and in front) of world points."""
     R, c = T_world_camera[:3, :3], T_world_camera[:3, 3]
     cam = (centres - c) @ R                                  # OpenGL camera axes: the camera looks along -z
@@ -208,7 +208,7 @@ def vote_fruit_masks(dataset: SceneDataset, views: list[int], box: np.ndarray, r
         radius = max(1, int(math.ceil(0.5 * voxel * float(K[0]) / max(distance, 1e-3))))
         fruit = dataset.semantic_masks[view].to(device, torch.float32)[None, None]
         dilated = dilate_square(fruit, radius)[0, 0] > 0
-        u, v, _, inside = _project(centres, T, K, dataset.width, dataset.height)
+        u, v, _, inside = project_points(centres, T, K, dataset.width, dataset.height)
         if dataset.valid_masks is not None:
             inside &= dataset.valid_masks[view].to(device)[v, u]
         seen += inside
@@ -270,7 +270,7 @@ def _mask_diameters(dataset: SceneDataset, views: list[int], fruit: torch.Tensor
     for view in views:
         T = dataset.T_world_camera[view].to(fruit.device)
         K = dataset.intrinsics[view].to(fruit.device)
-        u, v, depth, inside = _project(fruit, T, K, dataset.width, dataset.height)
+        u, v, depth, inside = project_points(fruit, T, K, dataset.width, dataset.height)
         ids = dataset.instance_masks[view].to(fruit.device).long()
         hit = ids[v, u] * inside.long()
         if not bool((hit > 0).any()):
@@ -288,6 +288,53 @@ def _mask_diameters(dataset: SceneDataset, views: list[int], fruit: torch.Tensor
     return np.concatenate(out) if out else np.zeros(0)
 
 
+class SceneVotes(NamedTuple):
+    """The finest vote of :func:`fruit_votes` and which of its voxels are fruit."""
+
+    votes: FruitVotes
+    fruit: torch.Tensor   # [N] bool, the fruit voxels (``min_fraction``): the diameter is measured on them
+    held: torch.Tensor    # [N] bool, the fruit voxels and those placed by views spread wide (``region_fraction``)
+
+
+def fruit_votes(dataset: SceneDataset, search_box: np.ndarray, config: ScaleConfig = ScaleConfig(), *,
+                device: torch.device | str = 'cpu') -> SceneVotes | None:
+    """The coarse vote over ``search_box``, then the fine and refining votes over the fruit region (the module
+    doc), of ``dataset``'s training views; None when the coarse vote finds fewer than 4 candidate voxels."""
+    device = torch.device(device)
+    views = [int(v) for v in dataset.train_indices]
+    coarse = vote_fruit_masks(dataset, views, np.asarray(search_box, np.float64), config.coarse_resolution, device)
+    candidates = fruit_voxel_mask(coarse, config.min_views, 0.5 * config.min_fraction, config.min_seen_share)
+    if int(candidates.sum()) < 4:
+        return None
+
+    def fruit_voxels(votes: FruitVotes) -> torch.Tensor:
+        return fruit_voxel_mask(votes, config.min_views, config.min_fraction, config.min_seen_share)
+
+    def held_voxels(votes: FruitVotes) -> torch.Tensor:
+        """The voxels the region holds: the fruit voxels, and those placed by views spread wide enough."""
+        if config.region_fraction is None:
+            return fruit_voxels(votes)
+        return fruit_voxels(votes) | fruit_voxel_mask(votes, config.min_views, config.region_fraction,
+                                                      config.min_seen_share, config.region_view_angle_deg)
+
+    fine = vote_fruit_masks(dataset, views, _region(coarse.centres[candidates], coarse.voxel),
+                            config.fine_resolution, device)
+    held = held_voxels(fine)
+    for _ in range(config.refine_votes):
+        if int(held.sum()) < 4:
+            break
+        finer = vote_fruit_masks(dataset, views, _region(fine.centres[held], fine.voxel), config.fine_resolution,
+                                 device)
+        finer_held = held_voxels(finer)
+        if int(finer_held.sum()) < max(4.0, config.refine_min_share * int(held.sum())):
+            break  # the finer cells lost the fruit (see refine_min_share): the vote before stands
+        shrunk = finer.voxel < 0.9 * fine.voxel
+        fine, held = finer, finer_held
+        if not shrunk:  # the region no longer shrinks: another vote would repeat this one
+            break
+    return SceneVotes(fine, fruit_voxels(fine), held)
+
+
 def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: ScaleConfig = ScaleConfig(), *,
                          device: torch.device | str = 'cpu') -> SceneScale:
     """The fruit diameter and fruit region of ``dataset`` (its training views), searched within ``search_box``.
@@ -300,41 +347,13 @@ def estimate_scene_scale(dataset: SceneDataset, search_box: np.ndarray, config: 
     """
     device = torch.device(device)
     views = [int(v) for v in dataset.train_indices]
-    coarse = vote_fruit_masks(dataset, views, np.asarray(search_box, np.float64), config.coarse_resolution, device)
-    candidates = fruit_voxel_mask(coarse, config.min_views, 0.5 * config.min_fraction, config.min_seen_share)
+    votes = fruit_votes(dataset, search_box, config, device=device)
     region, n_fruit, diameters = None, 0, np.zeros(0)
-
-    def fruit_voxels(votes: FruitVotes) -> torch.Tensor:
-        return fruit_voxel_mask(votes, config.min_views, config.min_fraction, config.min_seen_share)
-
-    def held_voxels(votes: FruitVotes) -> torch.Tensor:
-        """The voxels the region holds: the fruit voxels, and those placed by views spread wide enough."""
-        if config.region_fraction is None:
-            return fruit_voxels(votes)
-        return fruit_voxels(votes) | fruit_voxel_mask(votes, config.min_views, config.region_fraction,
-                                                      config.min_seen_share, config.region_view_angle_deg)
-
-    if int(candidates.sum()) >= 4:
-        fine = vote_fruit_masks(dataset, views, _region(coarse.centres[candidates], coarse.voxel),
-                                config.fine_resolution, device)
-        held = held_voxels(fine)
-        for _ in range(config.refine_votes):
-            if int(held.sum()) < 4:
-                break
-            finer = vote_fruit_masks(dataset, views, _region(fine.centres[held], fine.voxel), config.fine_resolution,
-                                     device)
-            finer_held = held_voxels(finer)
-            if int(finer_held.sum()) < max(4.0, config.refine_min_share * int(held.sum())):
-                break  # the finer cells lost the fruit (see refine_min_share): the vote before stands
-            shrunk = finer.voxel < 0.9 * fine.voxel
-            fine, held = finer, finer_held
-            if not shrunk:  # the region no longer shrinks: another vote would repeat this one
-                break
-        fruit = fruit_voxels(fine)
-        n_fruit = int(fruit.sum())
-        if int(held.sum()) >= 4 and n_fruit >= 4:
-            region = _region(fine.centres[held], fine.voxel)
-            diameters = _mask_diameters(dataset, views, fine.centres[fruit], config.min_mask_pixels)
+    if votes is not None:
+        n_fruit = int(votes.fruit.sum())
+        if int(votes.held.sum()) >= 4 and n_fruit >= 4:
+            region = _region(votes.votes.centres[votes.held], votes.votes.voxel)
+            diameters = _mask_diameters(dataset, views, votes.votes.centres[votes.fruit], config.min_mask_pixels)
     lo, hi = config.diameter_range_m
     units_per_metre = 1.0
     if config.fruit_diameter_m is not None:

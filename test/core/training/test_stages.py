@@ -20,6 +20,7 @@ from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 from fruitnerfpp_ros.core.training.scene_box import measure_scene
 from fruitnerfpp_ros.core.training.stages import build_stages
 from fruitnerfpp_ros.core.training.trainer import _train_step, make_optimizer, _Progress
+from fruitnerfpp_ros.errors import ConfigError
 from test.core.training.stand_in_scene import make_sphere_scene
 from test.core.training.test_trainer import MICRO
 
@@ -223,7 +224,6 @@ def test_geometry_fruit_share_is_drawn_from_fruit_pixels_and_trains_colour(parts
 
 
 def test_fruit_fraction_outside_zero_to_one_is_refused() -> None:
-    from fruitnerfpp_ros.errors import ConfigError
     for stage, value in (('geometry', 1.0), ('geometry', -0.1), ('semantic', 1.5)):
         with pytest.raises(ConfigError, match=f'{stage}.fruit_fraction'):
             replace_nested(MICRO, {stage: {'fruit_fraction': value}})
@@ -369,3 +369,42 @@ def test_the_instance_stage_draws_from_the_masks_interior_only_when_asked() -> N
         # every fruit drawn (the 2x2 one has no interior: it keeps its pixels), none of the background
         assert set(labels.tolist()) == {1, 2, 3}
     assert drawn[False].any() and not drawn[True].any()
+
+
+def test_the_fruit_hull_term_is_the_fruit_rays_weight_in_front_of_the_hull_and_weighted_only_when_asked(
+        parts: tuple) -> None:
+    dataset, model, _ = parts
+    assert REFINED.geometry.fruit_hull_weight == 0.0
+    off = build_stages(REFINED, dataset)[0].losses(model, torch.Generator().manual_seed(5))
+    assert 'fruit_hull_front' not in off.logged
+    geometry = build_stages(replace_nested(REFINED, {'geometry': {'fruit_hull_weight': 0.5}}), dataset)[0]
+    on = geometry.losses(model, torch.Generator().manual_seed(5))
+    assert float(on.total) == pytest.approx(float(off.total + 0.5 * on.logged['fruit_hull_front']), rel=1e-4)
+    hull = model.fruit_hull
+    assert hull is not None and bool(torch.isinf(hull[dataset.eval_indices]).all())
+    train = dataset.train_indices
+    assert bool(torch.isfinite(hull[train][dataset.semantic_masks[train]]).float().mean() > 0.5)
+    generator = torch.Generator().manual_seed(5)  # the same draw as the stage's, rendered here
+    pixels = geometry.sampler.sample(geometry.batch_rays, generator)
+    jitter = torch.rand(len(pixels.view), generator=generator)
+    n_uniform = geometry.sampler.num_uniform(len(pixels.view))
+    with torch.no_grad():
+        opacity = model.render(pixels, jitter, colour=True, far_field_rays=n_uniform).opacity
+    try:  # a hull far behind every sample: all of a fruit ray's weight lies in front of it; in front of the
+        # cameras: none does; met by no ray: the term is 0
+        model.fruit_hull = torch.full_like(hull, 1e3)
+        far = geometry.losses(model, torch.Generator().manual_seed(5)).logged['fruit_hull_front']
+        assert float(opacity[n_uniform:].mean()) > 1e-3
+        assert float(far) == pytest.approx(float(opacity[n_uniform:].mean()), rel=1e-3)
+        model.fruit_hull = torch.zeros_like(hull)
+        assert float(geometry.losses(model, torch.Generator().manual_seed(5)).logged['fruit_hull_front']) == 0.0
+        model.fruit_hull = torch.full_like(hull, float('inf'))
+        assert float(geometry.losses(model, torch.Generator().manual_seed(5)).logged['fruit_hull_front']) == 0.0
+    finally:
+        model.fruit_hull = hull
+
+
+@pytest.mark.parametrize('key', ['fruit_hull_weight', 'fruit_hull_margin'])
+def test_a_negative_fruit_hull_weight_or_margin_is_a_config_error(key: str) -> None:
+    with pytest.raises(ConfigError, match=key):
+        replace_nested(REFINED, {'geometry': {key: -1.0}})
