@@ -9,16 +9,16 @@ the fruit's centre: **front** more than one radius in front of the fruit's near 
 **behind** beyond the centre plus a radius. Printed per scene for the matched and the missed fruits: the rays, and
 the shares of front / on / behind, and the share of front rays whose rendered fruit probability is >= 0.5 (the
 semantic head paints the fruit on whatever the ray ends on: a front termination labelled fruit is a fruit exported
-at the wrong depth), and against the fruit masks' visual hull (``core/data/fruit_hull.py``, the bound of
-``geometry.fruit_hull_weight``, rendered from the run's poses): the share of the rays that meet it, and of those
-the share whose termination lies more than ``geometry.fruit_hull_margin`` diameters in front of it (where the
-term would act)::
+at the wrong depth), and against the fruit masks' visual hull (``core/data/fruit_hull.py``, rendered from the
+run's poses): the share of the rays that meet it, and of those the share whose termination lies more than
+``HULL_MARGIN`` diameters in front of it (where session 49's rejected free-space term, commit ``0ef1f3c``, acted)::
 
     python bench/fruit_ray_depth.py SUITE_DIR/pear_row_30_b1 SUITE_DIR/mango_row_101_b3 ...
 
 Session 48 (docs/results/accuracy_suite.md): on three rows the missed fruits' rays end in front 70-88 % of the
 time, the matched fruits' 26-51 %. Session 49: on plum_row_120 and pear_row_far the missed fruits' rays meet the
-hull 49-69 % of the time, and most of those end in front of it.
+hull 49-69 % of the time, and most of those end in front of it; a training term that empties that space
+(rejected) did not bring those fruits back.
 """
 
 from __future__ import annotations
@@ -37,6 +37,9 @@ from fruitnerfpp_ros.core.rendering.renderer import render_rays
 from fruitnerfpp_ros.core.training.scene_box import training_hull
 from fruitnerfpp_ros.core.training.trained_scene import load_trained_scene
 
+HULL_MARGIN = 0.5
+"""How far in front of the hull's first voxel (fruit diameters) a ray's termination still counts as behind it."""
+
 
 def fruit_ray_depths(scene_dir: Path) -> dict[str, np.ndarray]:
     """Per kind ('matched', 'missed'): [F, 7] per seen fruit: rays, front, on, behind shares, front-fruit share,
@@ -51,7 +54,7 @@ def fruit_ray_depths(scene_dir: Path) -> dict[str, np.ndarray]:
     poses = trained.poses(dataset.T_world_camera).float()
     train = dataset.train_indices
     hull = training_hull(trained.config, dataset, poses, 'cpu')
-    margin = trained.config.geometry.fruit_hull_margin * trained.scale.fruit_diameter_m
+    margin = HULL_MARGIN * trained.scale.fruit_diameter_m
     out: dict[str, list] = {'matched': [], 'missed': []}
     for g in np.flatnonzero(gt.n_views_visible != 0):
         view, row, col = torch.nonzero(dataset.instance_masks[train] == int(gt.ids[g]), as_tuple=True)

@@ -11,6 +11,11 @@ tell.
 pixel kept (a z-buffer by ``scatter_reduce``), and spread over the voxel's footprint at the nearest voxels' depth
 (a min filter: no gaps between voxel centres, where a ray would otherwise reach a voxel behind the one it
 crosses). The depth is the voxel centre's minus half a voxel: the front of its cell.
+
+Used by ``bench/fruit_ray_depth.py`` to tell where a trained field's fruit rays end against the masks. As a
+training term (the fruit rays' render weight in front of the hull, session 49, commit ``0ef1f3c``) it was
+rejected: on the rows it moved the field's fruit surfaces back but brought few missed fruits in (+0.01 to +0.04
+F1), and on a row with odometry noise it smeared fruits into two counts each (0.766 -> 0.577).
 """
 
 from __future__ import annotations

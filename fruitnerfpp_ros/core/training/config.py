@@ -172,14 +172,6 @@ class GeometryStageConfig(StageSchedule):
     pixel off the masks may see past the box). Without it a fruit ray's colour was half the background's (plum
     row: median opacity 0.74; mango: 48 % below 0.9) and the fruits few views see got no density; 0.05 raised
     the hemispheres more but added false fruit on the row drives (docs/results/accuracy_suite.md). 0 = off."""
-    fruit_hull_weight: float = 0.0
-    """Weight of the fruit rays' free space in front of the masks' visual hull: mean render weight of stage 1's
-    fruit-drawn rays in front of the first fruit voxel of the scene measurement's vote on their pixel, less
-    ``fruit_hull_margin`` (``core/data/fruit_hull.py``). A fruit pixel sees a fruit, so nothing opaque lies in
-    front of it; small fruit seen by few views got their surface 0.2-0.5 m in front of where they hang, and the
-    count missed them (docs/results/accuracy_suite.md). 0 = off."""
-    fruit_hull_margin: float = 0.5
-    """How far in front of the hull's first voxel (fruit diameters) a fruit ray's weight is still allowed."""
     fruit_opacity_interior: bool = False
     """That term only on the fruit rays through a mask's interior (``mask_interior``: a fruit without interior
     pixels keeps all of its): an edge pixel's colour mixes the fruit with what lies behind it, which may be past the
@@ -199,11 +191,6 @@ class GeometryStageConfig(StageSchedule):
     """The geometry grid's levels open coarse to fine over this fraction of stage 1 (BARF's schedule): poses align
     to a smooth field first, where the photometric gradient points the way over more than a fine cell. 0 = all
     levels from the start."""
-
-    def __post_init__(self) -> None:
-        if self.fruit_hull_weight < 0 or self.fruit_hull_margin < 0:
-            raise ConfigError('geometry.fruit_hull_weight and geometry.fruit_hull_margin must be >= 0, got '
-                              f'{self.fruit_hull_weight} and {self.fruit_hull_margin}')
 
     @property
     def pose_lr_final(self) -> float:

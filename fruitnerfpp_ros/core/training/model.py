@@ -34,7 +34,6 @@ from fruitnerfpp_ros.core.rendering.renderer import RenderOutput, RenderSettings
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.losses import photometric_loss, prototype_infonce, semantic_loss
 from fruitnerfpp_ros.core.training.pose_refinement import PoseRefinement
-from fruitnerfpp_ros.core.training.scene_box import training_hull
 
 __all__ = ['FruitNeRFModel', 'render_settings', 'field_config_for', 'occupancy_grid', 'training_depths']
 
@@ -147,9 +146,6 @@ class FruitNeRFModel(nn.Module):
         depths, self.depth_check = training_depths(config, dataset)
         self.depths: torch.Tensor | None
         self.register_buffer('depths', None if depths is None else depths.to(device), persistent=False)
-        self.fruit_diameter_m = fruit_diameter_m
-        self.fruit_hull: torch.Tensor | None = None  # [V, H, W], rendered on first use (hull_target)
-        self._hull_dataset: SceneDataset | None = dataset  # what the hull is rendered from; dropped once it is
         self.geometry_fn: GeometryFn = self.field.geometry
         if device.type == 'cuda' and config.render.compile and hasattr(torch, 'compile'):
             self.geometry_fn = _GuardedCompile(self.field.geometry)
@@ -197,29 +193,6 @@ class FruitNeRFModel(nn.Module):
         window = torch.clamp(cfg.window_sigmas * cfg.sigma_m(z) * stretch, min=narrowest)
         weight = torch.where(z > 0, narrowest / window, torch.zeros_like(z))
         return DepthTarget(z * stretch, window, weight)
-
-    def hull_target(self, pixels: PixelBatch, first: int) -> DepthTarget:
-        """The free-space bound of the rays of ``pixels`` from index ``first`` on (stage 1's fruit-drawn rays):
-        the distance along each ray to the fruit masks' visual hull less ``geometry.fruit_hull_margin`` fruit
-        diameters, weight 1 where the ray meets the hull (0 elsewhere and before ``first``).
-
-        The hull's depth images are rendered on first use from the poses of that moment (a run's start poses;
-        a resumed run's restored ones): ``core/data/fruit_hull.py``.
-        """
-        if self.fruit_hull is None:
-            assert self._hull_dataset is not None
-            self.fruit_hull = training_hull(self.config, self._hull_dataset, self.current_poses().detach(),
-                                            self.device)
-            self._hull_dataset = None
-        view, row, col = (t.to(self.device) for t in (pixels.view, pixels.row, pixels.col))
-        z = self.fruit_hull[view, row, col]
-        z = torch.where(torch.arange(len(z), device=z.device) >= first, z, torch.full_like(z, math.inf))
-        K = self.intrinsics[view]
-        x, y = (col.float() + 0.5 - K[:, 2]) / K[:, 0], (row.float() + 0.5 - K[:, 3]) / K[:, 1]
-        stretch = torch.sqrt(1.0 + x * x + y * y)
-        margin = torch.full_like(z, self.config.geometry.fruit_hull_margin * self.fruit_diameter_m)
-        finite = torch.isfinite(z)
-        return DepthTarget(torch.where(finite, z * stretch, torch.zeros_like(z)), margin, finite.to(z.dtype))
 
     def depth_loss(self, out: RenderOutput, target: DepthTarget) -> torch.Tensor:
         """The line-of-sight loss of the rendered rays against their measured depths."""

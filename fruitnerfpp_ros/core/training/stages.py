@@ -21,7 +21,6 @@ from fruitnerfpp_ros.core.data.dataset import SceneDataset
 from fruitnerfpp_ros.core.data.rays import pixels_crossing_box
 from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler, mask_interior
 from fruitnerfpp_ros.core.progress import Phase
-from fruitnerfpp_ros.core.rendering.depth_loss import DepthTarget
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.losses import fruit_transparency, opacity_entropy
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
@@ -142,13 +141,11 @@ class GeometryStage:
         jitter = torch.rand(len(pixels.view), generator=generator)
         n_uniform = self.sampler.num_uniform(len(pixels.view))
         target = model.depth_target(pixels, n_uniform)
-        hull = model.hull_target(pixels, n_uniform) if self.config.geometry.fruit_hull_weight > 0 \
-            and self.fruit_rays_train_colour and len(pixels.view) > n_uniform else None
         colour_rays = len(pixels.view) if self.fruit_rays_train_colour else n_uniform
         far_rays = n_uniform if self.fruit_rays_train_colour and not self.config.geometry.fruit_rays_far_field \
             else None
         out = model.render(pixels, jitter, colour=True, semantic=semantic, distortion_rays=n_uniform,
-                           far_field_rays=far_rays, depth_target=joined_target(target, hull, n_uniform))
+                           far_field_rays=far_rays, depth_target=target)
         photo = model.photometric_loss(out, pixels, colour_rays)
         total, logged = photo, {'photo': photo.detach()}
         weight = self.config.geometry.distortion_weight
@@ -167,10 +164,6 @@ class GeometryStage:
             transparency = fruit_transparency(out.opacity[n_uniform:], keep)
             total = total + opacity_weight * transparency
             logged['fruit_transparency'] = transparency.detach()
-        if hull is not None and out.line_of_sight is not None:
-            in_front = (out.line_of_sight.free * hull.weight).sum() / hull.weight.sum().clamp_min(1.0)
-            total = total + self.config.geometry.fruit_hull_weight * in_front
-            logged['fruit_hull_front'] = in_front.detach()
         if target is not None:
             depth = model.depth_loss(out, target)
             total = total + self.config.depth.weight * depth
@@ -181,15 +174,6 @@ class GeometryStage:
             total = total + self.config.semantic.semantic_weight * bce
             logged['semantic_loss'] = bce.detach()
         return StepLosses(total, logged, out.num_samples / max(len(pixels.view), 1))
-
-
-def joined_target(depth: DepthTarget | None, hull: DepthTarget | None, first: int) -> DepthTarget | None:
-    """One target for a batch: the measured depths of its first ``first`` rays (the uniform ones) and the fruit
-    hull's bound of the others (each is weightless on the other's rays)."""
-    if depth is None or hull is None:
-        return depth if hull is None else hull
-    uniform = torch.arange(len(depth.distance), device=depth.distance.device) < first
-    return DepthTarget(*(torch.where(uniform, a, b) for a, b in zip(depth, hull)))
 
 
 class SemanticStage(GeometryStage):
