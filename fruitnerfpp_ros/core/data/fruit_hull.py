@@ -31,19 +31,17 @@ from fruitnerfpp_ros.core.data.scene_scale import project_points
 __all__ = ['hull_depths']
 
 
-def hull_depths(dataset: SceneDataset, centres: torch.Tensor, voxel: float, views: torch.Tensor,
-                poses: torch.Tensor | None = None) -> torch.Tensor:
+def hull_depths(dataset: SceneDataset, centres: torch.Tensor, voxel: float, views: torch.Tensor) -> torch.Tensor:
     """[len(views), H, W] float32: depth along the optical axis of the first hull voxel on each pixel's ray (inf
     where the ray meets none).
 
     Args:
-        dataset: the views' intrinsics and image size.
+        dataset: the views' poses, intrinsics and image size.
         centres: [M, 3] the hull voxels' centres (m).
         voxel: their edge (m).
         views: the views to render.
-        poses: [V, 4, 4] camera-to-world poses (default: the dataset's).
     """
-    poses = dataset.T_world_camera if poses is None else poses
+    poses = dataset.T_world_camera
     height, width = dataset.height, dataset.width
     out = torch.full((len(views), height * width), math.inf, dtype=torch.float32, device=centres.device)
     for i, view in enumerate(views.tolist()):

@@ -87,7 +87,7 @@ def training_hull(config: TrainConfig, dataset: SceneDataset, poses: torch.Tenso
     out = torch.full((dataset.num_views, dataset.height, dataset.width), math.inf, device=device)
     votes = fruit_votes(posed, camera_box(posed, config), config.scale, device=device)
     if votes is None or not bool(votes.held.any()):
-        log.warning('fruit hull: the masks\' vote found no fruit voxels; training without the hull\'s bound')
+        log.warning('fruit hull: the masks\' vote found no fruit voxels; no ray meets a hull')
         return out
     train = dataset.train_indices
     out[train.to(device)] = hull_depths(posed, votes.votes.centres[votes.held], votes.votes.voxel, train)
