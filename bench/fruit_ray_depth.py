@@ -24,21 +24,39 @@ hull 49-69 % of the time, and most of those end in front of it; a training term 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 import torch
 
 from fruitnerfpp_ros.core.benchmark.scene_run import scored_ground_truth
-from fruitnerfpp_ros.core.data.dataset import load_dataset
+from fruitnerfpp_ros.core.data.dataset import SceneDataset, load_dataset
+from fruitnerfpp_ros.core.data.fruit_hull import hull_depths
 from fruitnerfpp_ros.core.data.rays import rays_for_pixels
+from fruitnerfpp_ros.core.data.scene_scale import fruit_votes
 from fruitnerfpp_ros.core.rendering.renderer import render_rays
-from fruitnerfpp_ros.core.training.scene_box import training_hull
+from fruitnerfpp_ros.core.training.config import TrainConfig
+from fruitnerfpp_ros.core.training.scene_box import camera_box
 from fruitnerfpp_ros.core.training.trained_scene import load_trained_scene
 
 HULL_MARGIN = 0.5
 """How far in front of the hull's first voxel (fruit diameters) a ray's termination still counts as behind it."""
+
+
+def hull_depth_images(config: TrainConfig, dataset: SceneDataset, poses: torch.Tensor) -> torch.Tensor:
+    """[V, H, W]: the depth along the optical axis at which each training-view pixel's ray meets the fruit masks'
+    visual hull (the scene measurement's vote from ``poses``: its fruit voxels and those placed by views spread
+    wide); inf where it meets none, and on held-out views."""
+    posed = dataclasses.replace(dataset, T_world_camera=poses)
+    out = torch.full((dataset.num_views, dataset.height, dataset.width), math.inf)
+    votes = fruit_votes(posed, camera_box(posed, config), config.scale)
+    if votes is not None:
+        out[dataset.train_indices] = hull_depths(posed, votes.votes.centres[votes.held], votes.votes.voxel,
+                                                 dataset.train_indices)
+    return out
 
 
 def fruit_ray_depths(scene_dir: Path) -> dict[str, np.ndarray]:
@@ -53,7 +71,7 @@ def fruit_ray_depths(scene_dir: Path) -> dict[str, np.ndarray]:
         matched[g] = True
     poses = trained.poses(dataset.T_world_camera).float()
     train = dataset.train_indices
-    hull = training_hull(trained.config, dataset, poses, 'cpu')
+    hull = hull_depth_images(trained.config, dataset, poses)
     margin = HULL_MARGIN * trained.scale.fruit_diameter_m
     out: dict[str, list] = {'matched': [], 'missed': []}
     for g in np.flatnonzero(gt.n_views_visible != 0):

@@ -74,7 +74,7 @@ def _cpu() -> TrainConfig:
     # Threads: the cores this process may use, shared among the jobs run at once (TrainConfig.cpu_threads 0): a run
     # alone on 2 cores trains 1.5x faster than on one thread; `bench accuracy --jobs 2` still gives each scene one.
     # Its held-out figures are over up to 8 views (tiny: 3, for the demo's time): 3 of a row's 8 moved the PSNR by up
-    # to 2.7 dB and the semantic IoU by 0.09 from all eight's, which cost 5-7 s more per stage end on a row's
+    # to 2.4 dB and the semantic IoU by 0.09 from all eight's, which cost 5-7 s more per stage end on a row's
     # fields (docs/results/accuracy_suite.md, session 49).
     tiny = _tiny()
     return dataclasses.replace(

@@ -2,23 +2,16 @@
 
 from __future__ import annotations
 
-import dataclasses
-import logging
-import math
-
 import numpy as np
 import torch
 
 from fruitnerfpp_ros.core.data.bounds import scene_aabb
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
-from fruitnerfpp_ros.core.data.fruit_hull import hull_depths
-from fruitnerfpp_ros.core.data.scene_scale import SceneScale, estimate_scene_scale, fruit_votes
+from fruitnerfpp_ros.core.data.scene_scale import SceneScale, estimate_scene_scale
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.errors import DatasetError
 
-__all__ = ['build_scene_box', 'camera_box', 'measure_scene', 'training_hull']
-
-log = logging.getLogger(__name__)
+__all__ = ['build_scene_box', 'camera_box', 'measure_scene']
 
 
 def camera_box(dataset: SceneDataset, config: TrainConfig) -> np.ndarray:
@@ -76,23 +69,3 @@ def build_scene_box(config: TrainConfig, cameras: np.ndarray, scale: SceneScale,
         raise DatasetError(f'the fruit region {np.round(region, 3).tolist()} lies outside the cameras\' box '
                            f'{np.round(cameras, 3).tolist()}: check the poses\' frame and the masks')
     return box
-
-
-def training_hull(config: TrainConfig, dataset: SceneDataset, poses: torch.Tensor, device: torch.device | str
-                  ) -> torch.Tensor:
-    """[V, H, W] float32 on ``device``: the depth along the optical axis at which each training-view pixel's ray
-    meets the fruit masks' visual hull (the scene measurement's vote from ``poses``, its fruit voxels and those
-    placed by views spread wide: ``core/data/fruit_hull.py``); inf where it meets none, and on held-out views."""
-    posed = dataclasses.replace(dataset, T_world_camera=poses.detach().cpu().float())
-    out = torch.full((dataset.num_views, dataset.height, dataset.width), math.inf, device=device)
-    votes = fruit_votes(posed, camera_box(posed, config), config.scale, device=device)
-    if votes is None or not bool(votes.held.any()):
-        log.warning('fruit hull: the masks\' vote found no fruit voxels; no ray meets a hull')
-        return out
-    train = dataset.train_indices
-    out[train.to(device)] = hull_depths(posed, votes.votes.centres[votes.held], votes.votes.voxel, train)
-    met = torch.isfinite(out[train.to(device)]) & dataset.semantic_masks[train].to(device)
-    log.info('fruit hull: %d voxels of %.1f mm; %.0f %% of the training views\' fruit pixels meet it',
-             int(votes.held.sum()), 1e3 * votes.votes.voxel,
-             100.0 * float(met.sum()) / max(1, int(dataset.semantic_masks[train].sum())))
-    return out
