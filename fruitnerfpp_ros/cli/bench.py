@@ -55,6 +55,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                           'missed, 0.1 false detections per fruit, boundaries a pixel off)')
     acc.add_argument('--jobs', type=int, default=1, help='scenes run at once, one process each (default 1)')
     acc.add_argument('--scenes', metavar='NAME,NAME', help='run only these scenes of the suite')
+    acc.add_argument('--draw', type=int, metavar='SEED',
+                     help='blind suite only: eight other scenes drawn from this seed (names ..._dSEED_i), to check a '
+                          'change again on scenes nobody has looked at')
     acc.add_argument('--config', type=Path, metavar='FILE.yaml',
                      help='pipeline YAML with optional sections train / export / clustering (as `fruitnerfpp run '
                           '--config`), applied on top of the preset')
@@ -69,6 +72,8 @@ def command_line(args: argparse.Namespace, preset: str) -> str:
              '--masks', args.masks, '--jobs', str(args.jobs), '--device', args.device]
     if args.scenes:
         words += ['--scenes', args.scenes]
+    if args.draw is not None:
+        words += ['--draw', str(args.draw)]
     if args.config:
         words += ['--config', str(args.config)]
     return ' '.join(shlex.quote(w) for w in words)
@@ -126,7 +131,7 @@ def run_accuracy(args: argparse.Namespace) -> int:
 
     from fruitnerfpp_ros.core.device import resolve_device
 
-    scenes = suite_scenes(args.suite, args.scenes)
+    scenes = suite_scenes(args.suite, args.scenes, draw=args.draw)
     preset = args.preset or SUITES[args.suite].preset
     resolve_device(args.device)  # an unknown or missing device fails here, not in every scene
     train, export, cluster = _configs(preset, args.config)

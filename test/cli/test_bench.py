@@ -24,7 +24,7 @@ MICRO_CONFIG = ('train:\n  geometry: {iterations: 5}\n  semantic: {iterations: 5
 def test_micro_scene_with_fallback_masks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                          capsys: pytest.CaptureFixture[str]) -> None:
     micro = SuiteScene('micro', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'micro')
-    monkeypatch.setattr(bench, 'suite_scenes', lambda suite, names: (micro,))  # the suites' scenes take minutes
+    monkeypatch.setattr(bench, 'suite_scenes', lambda suite, names, draw=None: (micro,))  # the suites' scenes take minutes
     config, out, log = tmp_path / 'micro.yaml', tmp_path / 'out', tmp_path / 'log.md'
     config.write_text(MICRO_CONFIG)
     code = main(['bench', 'accuracy', '--suite', 'quick', '--out', str(out), '--preset', 'tiny', '--masks',
@@ -48,7 +48,7 @@ def test_micro_scene_with_fallback_masks(tmp_path: Path, monkeypatch: pytest.Mon
 def test_micro_scene_with_blobs_of_the_fruit_masks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                    capsys: pytest.CaptureFixture[str]) -> None:
     micro = SuiteScene('micro', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'micro')
-    monkeypatch.setattr(bench, 'suite_scenes', lambda suite, names: (micro,))
+    monkeypatch.setattr(bench, 'suite_scenes', lambda suite, names, draw=None: (micro,))
     config, out = tmp_path / 'micro.yaml', tmp_path / 'out'
     config.write_text(MICRO_CONFIG)
     code = main(['bench', 'accuracy', '--suite', 'quick', '--out', str(out), '--preset', 'tiny', '--masks',
@@ -139,6 +139,9 @@ def test_scene_line_and_command_line() -> None:
     failed = SceneResult('b', error='scene: SynthError: no', times_s={'total': 0.3})
     assert bench.scene_line(failed) == 'b: 0 s FAILED: scene: SynthError: no'
     args = argparse.Namespace(suite='cpu', out=Path('my out'), masks='gt', jobs=2, device='auto', scenes='a,b',
-                              config=None)
+                              config=None, draw=None)
     assert bench.command_line(args, 'cpu') == ("fruitnerfpp bench accuracy --suite cpu --out 'my out' --preset cpu "
                                                '--masks gt --jobs 2 --device auto --scenes a,b')
+    args = argparse.Namespace(suite='blind', out=Path('b'), masks='gt', jobs=1, device='cpu', scenes=None,
+                              config=None, draw=7)
+    assert bench.command_line(args, 'cpu').endswith('--device cpu --draw 7')

@@ -9,6 +9,10 @@ view 42-65 deg, JPEG quality 70-95), and sized for the 2-core CPU machine (20-13
 views). Like ``holdout`` it confirms a default, it never chooses one.
 
     fruitnerfpp bench accuracy --suite blind --out b --jobs 2 --device cpu
+    fruitnerfpp bench accuracy --suite blind --draw 7 --out b7 --jobs 2 --device cpu   # another draw of eight
+
+``--draw SEED`` draws another eight from another seed (scene seeds of their own, names ``..._d<SEED>_<i>``): a
+change confirmed on the suite can be checked again on scenes that nobody has looked at yet.
 """
 
 from __future__ import annotations
@@ -18,8 +22,9 @@ import random
 from typing import Any
 
 from fruitnerfpp_ros.core.benchmark.scene_types import BagOptions, SuiteScene, row_fields
+from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['BLIND_SEED', 'BLIND_SCENES', 'draw_blind_scenes']
+__all__ = ['BLIND_SEED', 'BLIND_SCENES', 'draw_blind_scenes', 'scene_seeds']
 
 #: The draw's seed (the date the suite was drawn); change it only to draw a new blind suite, never to pick scenes.
 BLIND_SEED = 20261207
@@ -28,9 +33,17 @@ BLIND_SCENES = 8
 _FRUITS = ('apple', 'plum', 'lemon', 'pear', 'peach', 'mango', 'mixed')
 _RESOLUTIONS = ((160, 120), (200, 150), (240, 180), (320, 240), (192, 192), (256, 192))
 _FIRST_SEED = 401  # scene seeds 401...: no tuned suite uses them
+_OTHER_DRAWS_FIRST_SEED = 10_000  # another draw's scenes: 10_000 + 10 * (seed % 100_000) + index
 
 
-def _draw_one(rng: random.Random, index: int) -> SuiteScene:
+def scene_seeds(seed: int, count: int) -> tuple[int, ...]:
+    """The generator seeds of a draw's scenes: 401... for the suite's draw, others from 10_000 on (never a tuned
+    suite's)."""
+    first = _FIRST_SEED if seed == BLIND_SEED else _OTHER_DRAWS_FIRST_SEED + 10 * (seed % 100_000)
+    return tuple(first + index for index in range(count))
+
+
+def _draw_one(rng: random.Random, index: int, scene_seed: int, suffix: str) -> SuiteScene:
     """One scene: every axis drawn, the optional ones (lens, odometry error, drift, mask errors, bag) by chance."""
     fruit = rng.choice(_FRUITS)
     row = rng.random() < 0.6
@@ -39,7 +52,7 @@ def _draw_one(rng: random.Random, index: int) -> SuiteScene:
         fruit=fruit, count=count, views=rng.choice((48, 56, 64)), resolution=rng.choice(_RESOLUTIONS),
         fov_deg=round(rng.uniform(42.0, 65.0), 1), leaf_scale=round(rng.uniform(0.6, 1.3), 2),
         cluster_scale=round(rng.uniform(0.5, 2.0), 2), appearance_variation=round(rng.uniform(0.0, 0.8), 2),
-        seed=_FIRST_SEED + index)
+        seed=scene_seed)
     axes = [fruit, f'{count} fruits', 'row' if row else 'hemisphere']
     if row:
         synth.update(row_fields(row_standoff_m=round(rng.uniform(1.5, 3.0), 2),
@@ -71,11 +84,16 @@ def _draw_one(rng: random.Random, index: int) -> SuiteScene:
         bag = BagOptions(storage=rng.choice(('mcap', 'sqlite3')), pose_source=rng.choice(('pose', 'tf')))
         axes.append(f"bag ({bag.storage}, JPEG {synth['bag_jpeg_quality']}, {synth['world_frame']}, "
                     f'poses from {bag.pose_source})')
-    name = f"{fruit}_{'row' if row else 'hemi'}_{count}_b{index}"
+    name = f"{fruit}_{'row' if row else 'hemi'}_{count}_{suffix}"
     return SuiteScene(name, synth, ', '.join(axes), via_bag=via_bag, bag=bag)
 
 
 def draw_blind_scenes(seed: int = BLIND_SEED, count: int = BLIND_SCENES) -> tuple[SuiteScene, ...]:
-    """``count`` scenes drawn from ``seed``: the same scenes for the same arguments on every machine."""
+    """``count`` scenes drawn from ``seed``: the same scenes for the same arguments on every machine. The suite's
+    draw (:data:`BLIND_SEED`) names its scenes ``..._b<i>``, another draw ``..._d<seed>_<i>``."""
+    if count > 10 and seed != BLIND_SEED:
+        raise ConfigError('another draw holds at most 10 scenes (its scene seeds would meet the next draw\'s)')
     rng = random.Random(seed)
-    return tuple(_draw_one(rng, index) for index in range(count))
+    suffix = 'b{}' if seed == BLIND_SEED else f'd{seed}_{{}}'
+    return tuple(_draw_one(rng, index, scene_seed, suffix.format(index))
+                 for index, scene_seed in enumerate(scene_seeds(seed, count)))

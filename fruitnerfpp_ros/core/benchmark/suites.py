@@ -149,15 +149,20 @@ SUITES: Mapping[str, Suite] = MappingProxyType({
 SUITE_NAMES = tuple(SUITES)
 
 
-def suite_scenes(suite: str, names: str | list[str] | tuple[str, ...] | None = None) -> tuple[SuiteScene, ...]:
-    """The scenes of ``suite``, or only those named (``'a,b'`` or a list), in suite order.
+def suite_scenes(suite: str, names: str | list[str] | tuple[str, ...] | None = None, *,
+                 draw: int | None = None) -> tuple[SuiteScene, ...]:
+    """The scenes of ``suite``, or only those named (``'a,b'`` or a list), in suite order. ``draw``: the ``blind``
+    suite's scenes drawn from this seed instead of the suite's (:func:`.blind_suite.draw_blind_scenes`).
 
     Raises:
-        ConfigError: an unknown suite or scene name (the message lists the known ones).
+        ConfigError: an unknown suite or scene name (the message lists the known ones), or ``draw`` for a suite
+            other than ``blind``.
     """
     if suite not in SUITES:
         raise ConfigError(f'unknown suite {suite!r}; expected one of {", ".join(SUITE_NAMES)}')
-    scenes = SUITES[suite].scenes
+    if draw is not None and suite != 'blind':
+        raise ConfigError(f'a draw seed is for the blind suite only, not {suite!r}')
+    scenes = SUITES[suite].scenes if draw is None else draw_blind_scenes(draw)
     if names is None:
         return scenes
     wanted = [n.strip() for n in (names.split(',') if isinstance(names, str) else names) if n.strip()]

@@ -67,6 +67,23 @@ def test_blind_suite_is_a_fixed_draw_over_every_axis_on_seeds_no_other_suite_use
     assert all(s.covers.startswith(f'{s.synth_config().fruit}, ') for s in many)
 
 
+def test_another_blind_draw_has_scenes_names_and_seeds_of_its_own() -> None:
+    suite = SUITES['blind'].scenes
+    other = suite_scenes('blind', draw=7)
+    assert other == draw_blind_scenes(7) and len(other) == len(suite)
+    assert all(s.name.endswith(f'_d7_{i}') for i, s in enumerate(other))
+    assert all(s.name.endswith(f'_b{i}') for i, s in enumerate(suite))
+    taken = {s.synth_config().seed for name in SUITES for s in SUITES[name].scenes}
+    seeds = {s.synth_config().seed for s in other}
+    assert len(seeds) == len(other) and not seeds & taken
+    assert not seeds & {s.synth_config().seed for s in draw_blind_scenes(8)}   # the next draw's are its own too
+    assert [s.name for s in suite_scenes('blind', other[2].name, draw=7)] == [other[2].name]
+    with pytest.raises(ConfigError, match='blind suite only'):
+        suite_scenes('quick', draw=7)
+    with pytest.raises(ConfigError, match='unknown scene'):
+        suite_scenes('blind', suite[0].name, draw=7)
+
+
 def test_quick_suite_is_the_four_scenes() -> None:
     configs = [s.synth_config() for s in SUITES['quick'].scenes]
     ci = configs[0]
