@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
@@ -275,4 +276,7 @@ def run(args: argparse.Namespace) -> int:
           f'{result.dataset_dir} in {result.seconds:.1f} s'
           + (f'; bag {result.bag_path}' if result.bag_path else '')
           + (f'; preview {result.preview_path}' if result.preview_path else ''))
+    if result.n_fruits and not result.n_fruits_visible:
+        print('warning: no view shows any of the fruits: the cameras look past the tree (a small tree is low: '
+              'lower --camera-height, pitch down with --camera-pitch, or widen --fov)', file=sys.stderr)
     return 0

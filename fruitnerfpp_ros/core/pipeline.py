@@ -190,7 +190,10 @@ def export_run(run_dir: str | Path, export_config: ExportConfig | None = None, *
         result = export_fruit_cloud(scene.field, scene.aabb, config, surface_density=scene.surface_density,
                                     default_voxel_m=config.voxel_fruit_fraction * diameter, progress=progress,
                                     stop_event=stop_event)
-    result = ExportResult(dataclasses.replace(result.cloud, fruit_diameter_m=diameter), result.report)
+    cloud = dataclasses.replace(result.cloud, fruit_diameter_m=diameter)
+    if scene.config.instance.iterations == 0:  # an untrained instance head: its embeddings tell nothing apart
+        cloud = cloud.one_embedding()
+    result = ExportResult(cloud, result.report)
     ply = Path(out) if out is not None else run_dir / CLOUD_PLY
     if write_cloud:
         write_ply(ply, result.cloud)

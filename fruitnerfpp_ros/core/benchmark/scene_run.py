@@ -307,6 +307,10 @@ def _score_scene(job: SceneJob, scene_dir: Path, data_dir: Path, counted_dir: Pa
     record.values['n_views'] = len(read_transforms(counted_dir).frames)
     gt = scored_ground_truth(gt_path, counted_dir, scene_dir / 'run', job.train_config.data.eval_every)
     record.values['gt_seen'] = int(gt.seen.sum())
+    if not record.values['gt_seen']:  # every count would score 1.0: the scene tells nothing, nor lifts a mean
+        record.errors.append(f'scene: no training view sees any of the {len(gt.seen)} fruits (the cameras look '
+                             'past the tree): not scored')
+        return
     if pipeline is not None:
         metrics = evaluate_counts(pipeline.count.centers(), gt)
         record.values['ours'] = CounterScore.from_metrics(metrics)

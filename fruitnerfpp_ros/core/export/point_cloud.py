@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -62,6 +63,13 @@ class FruitPointCloud:
               fruit_diameter_m: float | None = None) -> 'FruitPointCloud':
         return cls(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8), np.zeros(0, np.float32),
                    np.zeros((0, embedding_dim), np.float32), spacing_m, fruit_diameter_m)
+
+    def one_embedding(self) -> 'FruitPointCloud':
+        """A copy whose points all have the same unit embedding (the first axis): for a run whose instance field was
+        not trained, so the count tells fruits apart by position alone (the cosine term 0, every pair agreeing)."""
+        embedding = np.zeros_like(self.embedding)
+        embedding[:, :1] = 1.0
+        return dataclasses.replace(self, embedding=embedding)
 
     def subset(self, mask_or_index: np.ndarray) -> 'FruitPointCloud':
         return FruitPointCloud(self.xyz[mask_or_index], self.rgb[mask_or_index], self.semantic[mask_or_index],

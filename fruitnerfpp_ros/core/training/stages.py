@@ -19,14 +19,15 @@ from torch import nn
 
 from fruitnerfpp_ros.core.data.dataset import SceneDataset
 from fruitnerfpp_ros.core.data.rays import pixels_crossing_box
-from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler, mask_interior
+from fruitnerfpp_ros.core.data.samplers import GroupInstanceSampler, UniformPixelSampler, index_view_fruits, \
+    mask_interior
 from fruitnerfpp_ros.core.progress import Phase
 from fruitnerfpp_ros.core.training.config import TrainConfig
 from fruitnerfpp_ros.core.training.losses import fruit_transparency, opacity_entropy
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 
 __all__ = ['ParamGroup', 'StepLosses', 'TrainingStage', 'GeometryStage', 'SemanticStage', 'InstanceStage',
-           'build_stages', 'STAGE_NAMES']
+           'build_stages', 'contrastive_views', 'instance_stage_masks', 'STAGE_NAMES']
 
 STAGE_NAMES = ('geometry', 'semantic', 'instance')
 
@@ -115,7 +116,9 @@ class GeometryStage:
                                            fruit_masks=fruit, fruit_fraction=stage.fruit_fraction,
                                            valid_masks=dataset.valid_masks if drawable is None else drawable,
                                            background_masks=background,
-                                           background_fraction=config.data.outside_box_fraction)
+                                           background_fraction=config.data.outside_box_fraction,
+                                           fruit_ids=dataset.instance_masks,
+                                           fruit_area_exponent=stage.fruit_area_exponent)
 
     @property
     def phase(self) -> Phase:
@@ -201,12 +204,10 @@ class InstanceStage:
         cfg = config.instance
         self.config = config
         self.iterations = cfg.iterations
-        masks = dataset.instance_masks
-        if cfg.interior:
-            masks = torch.where(mask_interior(masks, masks > 0), masks, torch.zeros_like(masks))
-        self.sampler = GroupInstanceSampler(dataset.train_indices, masks, groups=cfg.groups,
-                                            group_size=cfg.group_size, pixels_per_fruit=cfg.pixels_per_fruit,
-                                            min_pixels=config.data.min_fruit_pixels)
+        self.sampler = None if self.iterations == 0 else \
+            GroupInstanceSampler(dataset.train_indices, instance_stage_masks(config, dataset), groups=cfg.groups,
+                                 group_size=cfg.group_size, pixels_per_fruit=cfg.pixels_per_fruit,
+                                 min_pixels=config.data.min_fruit_pixels)
 
     @property
     def phase(self) -> Phase:
@@ -225,6 +226,22 @@ class InstanceStage:
                           {'contrastive_loss': contrastive.detach()}, out.num_samples / max(len(pixels.view), 1))
 
 
+def instance_stage_masks(config: TrainConfig, dataset: SceneDataset) -> torch.Tensor:
+    """[V, H, W] the instance masks the group sampler draws from (their interior with ``instance.interior``)."""
+    masks = dataset.instance_masks
+    if config.instance.interior:
+        masks = torch.where(mask_interior(masks, masks > 0), masks, torch.zeros_like(masks))
+    return masks
+
+
+def contrastive_views(config: TrainConfig, dataset: SceneDataset) -> int:
+    """How many training views the instance stage can draw from: two or more fruits of at least
+    ``data.min_fruit_pixels`` pixels each in the view's (interior) instance mask."""
+    masks = instance_stage_masks(config, dataset)
+    return sum(index_view_fruits(int(i), masks[int(i)], config.data.min_fruit_pixels) is not None
+               for i in dataset.train_indices)
+
+
 def build_stages(config: TrainConfig, dataset: SceneDataset,
                  aabb: np.ndarray | None = None) -> tuple[TrainingStage, ...]:
     """The three stages in order, with their samplers.
@@ -234,7 +251,8 @@ def build_stages(config: TrainConfig, dataset: SceneDataset,
     ``data.outside_box_fraction`` of the uniform ones, which come from the other pixels (the far field's backdrop).
 
     Raises:
-        DatasetError: no training view to draw rays from, or none with two fruits (before any step is trained).
+        DatasetError: no training view to draw rays from, or (``instance.iterations`` > 0) none with two fruits
+            (before any step is trained; :func:`contrastive_views` says so beforehand).
     """
     drawable = background = None
     if aabb is not None and config.data.rays_through_box:

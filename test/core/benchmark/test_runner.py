@@ -12,11 +12,16 @@ import pytest
 from fruitnerfpp_ros.core.benchmark.result import TIME_KEYS, SceneResult
 from fruitnerfpp_ros.core.benchmark.runner import ACCURACY_JSON, ACCURACY_MD, SuiteOptions, run_suite
 from fruitnerfpp_ros.core.benchmark.scene_run import SCENE_JSON, SCENE_LOG, SceneJob
+from fruitnerfpp_ros.core.benchmark.scene_types import row_fields
 from fruitnerfpp_ros.core.benchmark.suites import BagOptions, SuiteScene
 from fruitnerfpp_ros.errors import ConfigError
 
 #: A tree small enough for a one-minute test: 8 apples, 12 views of 48 px.
 MICRO = SuiteScene('micro', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'micro scene')
+#: A camera 2 m high, pitched up, over a tree whose crown hangs at about half a metre: no view shows a fruit.
+PAST = SuiteScene('past', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5,
+                               **row_fields(row_standoff_m=2.4, camera_height_m=2.0, camera_pitch_deg=10.0)),
+                  'cameras looking past the tree')
 #: Fails in its process: SynthConfig has no such fruit.
 BAD = SuiteScene('bad', dict(fruit='banana'), 'a broken definition')
 
@@ -37,11 +42,11 @@ def test_one_micro_scene_end_to_end_and_a_failing_one(tmp_path: Path) -> None:
     from fruitnerfpp_ros.core.tracking import track_dataset
 
     finished: list[str] = []
-    suite = run_suite('test', [MICRO, BAD], tmp_path, _options(jobs=2, peer_beside_ours=True),
+    suite = run_suite('test', [MICRO, BAD, PAST], tmp_path, _options(jobs=2, peer_beside_ours=True),
                       command='fruitnerfpp bench ...',
                       on_scene_done=lambda result: finished.append(result.name))
-    assert sorted(finished) == ['bad', 'micro'] and [s.name for s in suite.scenes] == ['micro', 'bad']
-    micro, bad = suite.scenes
+    assert sorted(finished) == ['bad', 'micro', 'past'] and [s.name for s in suite.scenes] == ['micro', 'bad', 'past']
+    micro, bad, past = suite.scenes
     assert micro.ok, micro.error
     assert micro.gt_count == 8 and 0 < micro.gt_seen <= 8 and micro.n_views == 12
     assert micro.ours is not None and micro.peer is not None and micro.peer.count >= 1
@@ -62,8 +67,13 @@ def test_one_micro_scene_end_to_end_and_a_failing_one(tmp_path: Path) -> None:
     assert not bad.ok and bad.ours is None and bad.peer is None
     assert "SynthError: unknown fruit type 'banana'" in bad.error
 
+    # a scene no view sees a fruit of is reported, not scored (every count would score 1.0 there)
+    assert not past.ok and past.gt_count == 8 and past.gt_seen == 0 and past.ours is None and past.peer is None
+    assert 'no training view sees any of the 8 fruits' in past.error and 'not scored' in past.error
+    assert json.loads((tmp_path / 'past' / 'run' / 'counts.json').read_text())['total'] == 0  # ours ran: 0
+
     data = json.loads((tmp_path / ACCURACY_JSON).read_text())
-    assert data['suite'] == 'test' and data['summary']['failed'] == ['bad'] and len(data['scenes']) == 2
+    assert data['suite'] == 'test' and data['summary']['failed'] == ['bad', 'past'] and len(data['scenes']) == 3
     assert data['summary']['mean_f1'] == pytest.approx(micro.ours.f1)
     text = (tmp_path / ACCURACY_MD).read_text()
     assert '[count.png](micro/count.png)' in text and "failed: scene: SynthError: unknown fruit type 'banana'" in text

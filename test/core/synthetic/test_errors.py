@@ -85,3 +85,15 @@ def test_cli_bad_input_prints_one_line_and_exits_2(argv: list[str], message: str
     err = capsys.readouterr().err
     assert err.count('\n') == 1 and err.startswith('fruitnerfpp synth: error: ') and message in err
     assert 'Traceback' not in err
+
+
+def test_cli_warns_when_no_view_shows_a_fruit(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A small tree (8 apples: its crown hangs at about half a metre) under a camera 2 m high pitched up 10 deg."""
+    common = ['synth', '--quiet', '--fruit', 'apple', '--count', '8', '--views', '12', '--resolution', '48',
+              '--seed', '5', '--trajectory', 'row', '--row-standoff', '2.4']
+    assert main([*common, '--camera-height', '2.0', '--camera-pitch', '10', '--out', str(tmp_path / 'past')]) == 0
+    captured = capsys.readouterr()
+    assert '(0 visible)' in captured.out and 'warning: no view shows any of the fruits' in captured.err
+    assert main([*common, '--camera-height', '0.8', '--camera-pitch', '0', '--out', str(tmp_path / 'level')]) == 0
+    captured = capsys.readouterr()
+    assert '(0 visible)' not in captured.out and 'warning' not in captured.err
