@@ -22,10 +22,7 @@ class UniformPixelSampler:
     With ``fruit_masks`` and ``fruit_fraction > 0``, that fraction of every batch is drawn uniformly from the fruit
     pixels instead (fruit covers a few percent of an orchard image: without this a batch holds a handful of them).
     The uniform part comes first in every batch (:meth:`num_uniform`); with ``background_masks``, its last
-    ``background_fraction`` comes from those pixels. With ``fruit_ids`` and ``fruit_area_exponent`` below 1, the
-    fruit pixels are not drawn uniformly: each fruit of a view (its pixels in ``fruit_ids``) gets a share of the
-    fruit draws proportional to its pixel count to that power (1: uniform over pixels; 0.5: a fruit shown in 25
-    pixels gets a fifth of the draws of one shown in 625, not a 25th; 0: every fruit of every view alike).
+    ``background_fraction`` comes from those pixels.
 
     Args:
         views: [V'] view indices to draw from.
@@ -36,15 +33,11 @@ class UniformPixelSampler:
         background_masks: [V, H, W] bool pixels (e.g. those whose rays miss the scene box) from which
             ``background_fraction`` of the uniform rays are drawn instead of from ``valid_masks`` (at most their
             share of the pixels); None = none.
-        fruit_ids: [V, H, W] int fruit ids per view (instance masks; 0 on a fruit pixel: a group of its own per
-            view), for ``fruit_area_exponent``; None = uniform over the fruit pixels.
-        fruit_area_exponent: a fruit's share of the fruit draws goes as its pixel count to this power (in [0, 1]).
     """
 
     def __init__(self, views: torch.Tensor, height: int, width: int, *, fruit_masks: torch.Tensor | None = None,
                  fruit_fraction: float = 0.0, valid_masks: torch.Tensor | None = None,
-                 background_masks: torch.Tensor | None = None, background_fraction: float = 0.0,
-                 fruit_ids: torch.Tensor | None = None, fruit_area_exponent: float = 1.0) -> None:
+                 background_masks: torch.Tensor | None = None, background_fraction: float = 0.0) -> None:
         if len(views) == 0:
             raise DatasetError('no training views to sample rays from')
         self._views = views.to(torch.int64)
@@ -58,9 +51,6 @@ class UniformPixelSampler:
             flat = fruit_masks.reshape(len(fruit_masks), -1)
             self._fruit_pixels = self._pool(flat if self._valid is None else flat & self._valid)
         self._fruit_fraction = fruit_fraction if len(self._fruit_pixels) else 0.0
-        self._fruit_cdf = None  # [M] float64 cumulative draw weight of the fruit pixels; None = uniform
-        if fruit_ids is not None and fruit_area_exponent != 1.0 and len(self._fruit_pixels):
-            self._fruit_cdf = self._area_cdf(fruit_ids, fruit_area_exponent)
         self._background_pixels = torch.zeros(0, dtype=torch.int64)
         self._background_fraction = 0.0
         if background_masks is not None and background_fraction > 0:
@@ -74,16 +64,6 @@ class UniformPixelSampler:
         """The True pixels of ``flat_masks`` [V, H * W] in the sampled views, as view * H * W + flat pixel."""
         hits = torch.nonzero(flat_masks[self._views])  # [M, 2]: (position in views, flat pixel)
         return self._views[hits[:, 0]] * (self._height * self._width) + hits[:, 1]
-
-    def _area_cdf(self, fruit_ids: torch.Tensor, exponent: float) -> torch.Tensor:
-        """The fruit pool's cumulative draw weights: a pixel weighs (its fruit's pixels in its view)^(exponent - 1)."""
-        if not 0.0 <= exponent <= 1.0:
-            raise DatasetError(f'fruit_area_exponent must lie in [0, 1], got {exponent}')
-        ids = fruit_ids.reshape(len(fruit_ids), -1).to(torch.int64)
-        view = self._fruit_pixels // (self._height * self._width)
-        fruit = ids[view, self._fruit_pixels % (self._height * self._width)]
-        _, group, area = torch.unique(view * (int(ids.max()) + 1) + fruit, return_inverse=True, return_counts=True)
-        return torch.cumsum(area[group].to(torch.float64) ** (exponent - 1.0), 0)
 
     def num_uniform(self, batch_size: int) -> int:
         """How many of a ``batch_size`` batch are drawn uniformly: they come first, the fruit pixels after."""
@@ -110,23 +90,14 @@ class UniformPixelSampler:
         chosen = pool[torch.randint(len(pool), (count,), generator=generator)]
         return chosen // (self._height * self._width), chosen % (self._height * self._width)
 
-    def _weighted(self, pool: torch.Tensor, cdf: torch.Tensor, count: int,
-                  generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-        """``count`` (view, flat pixel) pairs drawn from ``pool`` with the weights whose running sum is ``cdf``."""
-        draw = torch.rand(count, generator=generator, dtype=torch.float64) * cdf[-1]
-        chosen = pool[torch.searchsorted(cdf, draw, right=True).clamp_(max=len(pool) - 1)]
-        return chosen // (self._height * self._width), chosen % (self._height * self._width)
-
     def sample(self, batch_size: int, generator: torch.Generator) -> PixelBatch:
         n_uniform = self.num_uniform(batch_size)
         n_fruit = batch_size - n_uniform
         n_background = int(round(n_uniform * self._background_fraction))
         view, pixel = self._uniform(n_uniform - n_background, generator)
-        for pool, count, cdf in ((self._background_pixels, n_background, None),
-                                 (self._fruit_pixels, n_fruit, self._fruit_cdf)):
+        for pool, count in ((self._background_pixels, n_background), (self._fruit_pixels, n_fruit)):
             if count:
-                more_view, more_pixel = self._from(pool, count, generator) if cdf is None else \
-                    self._weighted(pool, cdf, count, generator)
+                more_view, more_pixel = self._from(pool, count, generator)
                 view, pixel = torch.cat([view, more_view]), torch.cat([pixel, more_pixel])
         return PixelBatch(view, pixel // self._width, pixel % self._width)
 

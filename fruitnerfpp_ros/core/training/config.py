@@ -153,10 +153,6 @@ class GeometryStageConfig(StageSchedule):
     like the uniform rays' (the distortion, opacity-entropy and depth losses stay on the uniform part). Fruit is
     under 1 % of a row drive's pixels: with uniform batches alone each fruit pixel trained the density about once
     and the fruit surfaces came out 0.1-0.4 m off (docs/results/accuracy_suite.md). 0 = uniform batches."""
-    fruit_area_exponent: float = 1.0
-    """A fruit of a view gets a share of those fruit draws proportional to its mask's pixels to this power: 1 =
-    uniform over the fruit pixels (a fruit shown in 30 pixels gets a 40th of the draws of one shown in 1200); below
-    1 the fruits shown small get more (0.5: a sixth)."""
     fruit_rays_far_field: bool = False
     """Whether the fruit-drawn rays see the far field behind the box. False (default): they see the background
     colour there, so their fruit colour must come from inside the box, where the fruit region lies; with True the
@@ -216,8 +212,6 @@ class SemanticStageConfig(StageSchedule):
     fruit_fraction: float = 0.25
     """Fraction of each batch drawn from fruit pixels (the rest uniformly): fruit is a few percent of an image. The
     photometric and distortion losses use the uniform part only."""
-    fruit_area_exponent: float = 1.0
-    """As the geometry stage's: a fruit's share of the fruit draws goes as its mask's pixels to this power."""
 
 
 @dataclass(frozen=True)
@@ -366,8 +360,6 @@ class TrainConfig:
         for name in ('geometry', 'semantic'):
             if not 0.0 <= getattr(self, name).fruit_fraction < 1.0:
                 raise ConfigError(f'{name}.fruit_fraction must lie in [0, 1)')
-            if not 0.0 <= getattr(self, name).fruit_area_exponent <= 1.0:
-                raise ConfigError(f'{name}.fruit_area_exponent must lie in [0, 1]')
         if self.geometry.pose_refine_when not in ('always', 'aligned'):
             raise ConfigError(f"geometry.pose_refine_when must be 'always' or 'aligned', got "
                               f"{self.geometry.pose_refine_when!r}")

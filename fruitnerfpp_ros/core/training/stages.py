@@ -116,9 +116,7 @@ class GeometryStage:
                                            fruit_masks=fruit, fruit_fraction=stage.fruit_fraction,
                                            valid_masks=dataset.valid_masks if drawable is None else drawable,
                                            background_masks=background,
-                                           background_fraction=config.data.outside_box_fraction,
-                                           fruit_ids=dataset.instance_masks,
-                                           fruit_area_exponent=stage.fruit_area_exponent)
+                                           background_fraction=config.data.outside_box_fraction)
 
     @property
     def phase(self) -> Phase:

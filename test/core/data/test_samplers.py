@@ -93,35 +93,3 @@ def test_uniform_sampler_draws_its_background_share_but_never_more_than_the_back
         hit = background[drawn.view, drawn.row, drawn.col]
         n_background = int(round(5000 * share))
         assert int(hit.sum()) == n_background and bool(hit[5000 - n_background:].all())
-
-
-def test_fruit_draws_follow_each_fruits_pixel_count_to_the_area_exponent() -> None:
-    ids = torch.zeros(2, 40, 40, dtype=torch.int32)
-    ids[0, 0:30, 0:30] = 1                       # 900 pixels
-    ids[0, 35:38, 35:38] = 2                     # 9 pixels
-    ids[1, 0:5, 0:5] = 1                         # 25 pixels: the same id in another view is another fruit
-    cases = {1.0: (900, 9, 25), 0.5: (30, 3, 5), 0.0: (1, 1, 1)}
-    for exponent, weights in cases.items():
-        sampler = UniformPixelSampler(torch.tensor([0, 1]), 40, 40, fruit_masks=ids > 0, fruit_fraction=0.5,
-                                      fruit_ids=ids, fruit_area_exponent=exponent)
-        batch = sampler.sample(40_000, torch.Generator().manual_seed(3))
-        n = sampler.num_uniform(40_000)
-        view, fruit = batch.view[n:], ids[batch.view[n:], batch.row[n:], batch.col[n:]]
-        assert bool((fruit > 0).all())
-        shares = [float(((view == v) & (fruit == f)).float().mean()) for v, f in ((0, 1), (0, 2), (1, 1))]
-        expected = [w / sum(weights) for w in weights]
-        assert all(abs(s - e) < 0.01 for s, e in zip(shares, expected)), (exponent, shares, expected)
-        # within a fruit its pixels are drawn alike: the big fruit's two halves get half its draws each
-        big = batch.view[n:] == 0
-        left = big & (fruit == 1) & (batch.col[n:] < 15)
-        assert abs(float(left.sum()) / float((big & (fruit == 1)).sum()) - 0.5) < 0.03
-
-
-def test_area_exponent_one_draws_exactly_the_uniform_fruit_pixels() -> None:
-    ids = _blobs()
-    ids[0, 30:40, 30:40] = 9
-    plain = UniformPixelSampler(torch.tensor([0, 1]), 40, 40, fruit_masks=ids > 0, fruit_fraction=0.3)
-    same = UniformPixelSampler(torch.tensor([0, 1]), 40, 40, fruit_masks=ids > 0, fruit_fraction=0.3, fruit_ids=ids,
-                               fruit_area_exponent=1.0)
-    a, b = (s.sample(1000, torch.Generator().manual_seed(4)) for s in (plain, same))
-    assert torch.equal(a.view, b.view) and torch.equal(a.row, b.row) and torch.equal(a.col, b.col)
