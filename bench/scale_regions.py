@@ -41,14 +41,16 @@ def main() -> int:
     from fruitnerfpp_ros.core.data.scene_scale import estimate_scene_scale
 
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument('--suites', default='quick,cpu', help='comma-separated suite names (default quick,cpu)')
+    parser.add_argument('--suites', default='quick,cpu', help='comma-separated suite names (default quick,cpu); '
+                        'blind:SEED for another blind draw')
     parser.add_argument('--out', type=Path, default=Path('scale_regions'), help='where the scenes are synthesised')
     parser.add_argument('--variant', action='append', default=[], help='name=key:value,... (repeatable)')
     args = parser.parse_args()
     config = preset('cpu')
     variants = {'base': config.scale} | {n: dataclasses.replace(config.scale, **o)
                                          for n, o in map(_variant, args.variant)}
-    for scene in (s for name in args.suites.split(',') for s in suite_scenes(name)):
+    named = [name.partition(':') for name in args.suites.split(',')]
+    for scene in (s for name, _, draw in named for s in suite_scenes(name, draw=int(draw) if draw else None)):
         data = args.out / scene.name
         if not (data / 'transforms.json').is_file():
             generate_orchard(scene.synth_config('cpu'), data)
