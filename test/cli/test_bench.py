@@ -24,7 +24,8 @@ MICRO_CONFIG = ('train:\n  geometry: {iterations: 5}\n  semantic: {iterations: 5
 def test_micro_scene_with_fallback_masks(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                          capsys: pytest.CaptureFixture[str]) -> None:
     micro = SuiteScene('micro', dict(fruit='apple', count=8, views=12, resolution=(48, 48), seed=5), 'micro')
-    monkeypatch.setattr(bench, 'suite_scenes', lambda suite, names, draw=None: (micro,))  # the suites' scenes take minutes
+    # the suites' scenes take minutes
+    monkeypatch.setattr(bench, 'suite_scenes', lambda suite, names, draw=None: (micro,))
     config, out, log = tmp_path / 'micro.yaml', tmp_path / 'out', tmp_path / 'log.md'
     config.write_text(MICRO_CONFIG)
     code = main(['bench', 'accuracy', '--suite', 'quick', '--out', str(out), '--preset', 'tiny', '--masks',
