@@ -10,6 +10,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+import logging
 from dataclasses import dataclass
 from typing import ClassVar, NamedTuple, Protocol
 
@@ -27,9 +29,12 @@ from fruitnerfpp_ros.core.training.losses import fruit_transparency, opacity_ent
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 
 __all__ = ['ParamGroup', 'StepLosses', 'TrainingStage', 'GeometryStage', 'SemanticStage', 'InstanceStage',
-           'build_stages', 'contrastive_views', 'instance_stage_masks', 'STAGE_NAMES']
+           'build_stages', 'contrastive_views', 'instance_stage_masks', 'stages_the_masks_allow',
+           'STAGE_NAMES']
 
 STAGE_NAMES = ('geometry', 'semantic', 'instance')
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -238,6 +243,24 @@ def contrastive_views(config: TrainConfig, dataset: SceneDataset) -> int:
     masks = instance_stage_masks(config, dataset)
     return sum(index_view_fruits(int(i), masks[int(i)], config.data.min_fruit_pixels) is not None
                for i in dataset.train_indices)
+
+
+def stages_the_masks_allow(config: TrainConfig, dataset: SceneDataset) -> TrainConfig:
+    """``config`` with the stages the masks cannot train at 0 steps (a warning says why): masks without a fruit pixel
+    in any training view leave nothing to count, so no stage trains (the count is 0); masks that never show two
+    fruits in one view leave the instance stage nothing to contrast (the count then goes by position)."""
+    views = len(dataset.train_indices)
+    if not bool(dataset.semantic_masks[dataset.train_indices].any()):
+        log.warning('the masks of the %d training views hold no fruit: nothing to count, nothing trained (the count '
+                    'is 0). Check the masks (their source, topic or model)', views)
+        return dataclasses.replace(config, **{name: dataclasses.replace(getattr(config, name), iterations=0)
+                                              for name in STAGE_NAMES})
+    if config.instance.iterations > 0 and contrastive_views(config, dataset) == 0:
+        log.warning('no training view shows two fruits (%d views; a fruit of at least %d pixels): the instance field '
+                    'is not trained (instance.iterations 0 in the run\'s config), and the count tells fruits apart by '
+                    'their positions alone (touching fruits count as one)', views, config.data.min_fruit_pixels)
+        return dataclasses.replace(config, instance=dataclasses.replace(config.instance, iterations=0))
+    return config
 
 
 def build_stages(config: TrainConfig, dataset: SceneDataset,

@@ -35,7 +35,7 @@ from fruitnerfpp_ros.core.training.run_dir import RunDir
 from fruitnerfpp_ros.core.atomic_io import atomic_write_text
 from fruitnerfpp_ros.core.data.scene_scale import SceneScale
 from fruitnerfpp_ros.core.training.stages import STAGE_NAMES, ParamGroup, TrainingStage, build_stages, \
-    contrastive_views
+    stages_the_masks_allow
 from fruitnerfpp_ros.core.training.trained_scene import CHECKPOINT_VERSION, SCALE_JSON, scale_from_json
 from fruitnerfpp_ros.errors import TrainingError
 
@@ -273,13 +273,7 @@ def train(dataset_dir: str | Path, run_dir: str | Path, config: TrainConfig | No
     else:
         start = start_poses(dataset, config, dev)
         config, aabb, scale = start.config, start.aabb, start.scale
-        if config.instance.iterations > 0 and contrastive_views(config, dataset) == 0:
-            log.warning('no training view shows two fruits (%d views; a fruit of at least %d pixels): the instance '
-                        'field is not trained (instance.iterations 0 in the run\'s config), and the count tells fruits '
-                        'apart by their positions alone (touching fruits count as one). Check the masks (%s)',
-                        len(dataset.train_indices), config.data.min_fruit_pixels,
-                        'they hold no fruit' if not bool(dataset.semantic_masks.any()) else 'one fruit a view')
-            config = dataclasses.replace(config, instance=dataclasses.replace(config.instance, iterations=0))
+        config = stages_the_masks_allow(config, dataset)
     stages = build_stages(config, dataset, aabb)
     run.create()
     save_config(config, run.config_path)

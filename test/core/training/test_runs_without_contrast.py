@@ -41,9 +41,9 @@ def _without_fruit(scene: Path, out: Path) -> Path:
 def test_one_fruit_a_view_trains_without_the_instance_stage_and_counts_by_position(one_fruit: Path, tmp_path: Path,
                                                                                    caplog) -> None:
     assert MICRO.instance.iterations > 0
-    with caplog.at_level('WARNING', logger='fruitnerfpp_ros.core.training.trainer'):
+    with caplog.at_level('WARNING', logger='fruitnerfpp_ros.core.training.stages'):
         result = run_pipeline(one_fruit, tmp_path / 'run', train_config=MICRO, device='cpu')
-    assert 'no training view shows two fruits' in caplog.text and 'one fruit a view' in caplog.text
+    assert 'no training view shows two fruits' in caplog.text and 'hold no fruit' not in caplog.text
     assert result.train_summary.completed and not result.stopped
     saved = load_config(TrainConfig, RunDir(tmp_path / 'run').config_path)
     assert saved.instance.iterations == 0 and saved.geometry.iterations == MICRO.geometry.iterations
@@ -56,8 +56,10 @@ def test_one_fruit_a_view_trains_without_the_instance_stage_and_counts_by_positi
 
 def test_masks_without_fruit_count_zero_instead_of_failing(one_fruit: Path, tmp_path: Path, caplog) -> None:
     empty = _without_fruit(one_fruit, tmp_path / 'empty')
-    with caplog.at_level('WARNING', logger='fruitnerfpp_ros.core.training.trainer'):
+    with caplog.at_level('WARNING', logger='fruitnerfpp_ros.core.training.stages'):
         result = run_pipeline(empty, tmp_path / 'run', train_config=MICRO, device='cpu')
-    assert 'they hold no fruit' in caplog.text
+    assert 'hold no fruit: nothing to count' in caplog.text
     assert result.count.count == 0 and len(result.cloud) == 0
+    saved = load_config(TrainConfig, RunDir(tmp_path / 'run').config_path)   # nothing trained for nothing
+    assert saved.geometry.iterations == saved.semantic.iterations == saved.instance.iterations == 0
     assert json.loads(result.paths.counts_json.read_text())['total'] == 0
