@@ -373,7 +373,8 @@ def _finish_stage(stage: TrainingStage, model: FruitNeRFModel, dataset: SceneDat
     """Held-out evaluation, the stage-end log line and summary; moves the counters to the next stage."""
     model.field.encoding.open_levels(1.0)  # every level from here on (coarse_to_fine_fraction 1 ends just short)
     model.field.eval()
-    eval_views = spread_views(dataset.eval_indices, config.eval_max_views)
+    # a field no step has trained (masks without fruit: nothing to count) has nothing to score
+    eval_views = spread_views(dataset.eval_indices, config.eval_max_views) if counters.global_step else []
     # the heads a stage has not trained yet are not rendered (their figures are NaN: null in metrics.jsonl)
     started = time.perf_counter()
     # rendered from the poses the model uses: with a pose start the held-out views' are the alignment's resection

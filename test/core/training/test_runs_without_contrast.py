@@ -62,4 +62,6 @@ def test_masks_without_fruit_count_zero_instead_of_failing(one_fruit: Path, tmp_
     assert result.count.count == 0 and len(result.cloud) == 0
     saved = load_config(TrainConfig, RunDir(tmp_path / 'run').config_path)   # nothing trained for nothing
     assert saved.geometry.iterations == saved.semantic.iterations == saved.instance.iterations == 0
+    ends = [r for r in RunDir(tmp_path / 'run').read_metrics() if r.get('event') == 'stage_end']
+    assert len(ends) == 3 and all(r['eval_views'] == 0 for r in ends)   # an untrained field is not rendered
     assert json.loads(result.paths.counts_json.read_text())['total'] == 0
