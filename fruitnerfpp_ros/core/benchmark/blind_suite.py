@@ -24,7 +24,7 @@ from typing import Any
 from fruitnerfpp_ros.core.benchmark.scene_types import BagOptions, SuiteScene, row_fields
 from fruitnerfpp_ros.errors import ConfigError
 
-__all__ = ['BLIND_SEED', 'BLIND_SCENES', 'draw_blind_scenes', 'scene_seeds']
+__all__ = ['BLIND_SEED', 'BLIND_SCENES', 'draw_blind_scenes']
 
 #: The draw's seed (the date the suite was drawn); change it only to draw a new blind suite, never to pick scenes.
 BLIND_SEED = 20261207
@@ -36,7 +36,7 @@ _FIRST_SEED = 401  # scene seeds 401...: no tuned suite uses them
 _OTHER_DRAWS_FIRST_SEED = 10_000  # another draw's scenes: 10_000 + 10 * (seed % 100_000) + index
 
 
-def scene_seeds(seed: int, count: int) -> tuple[int, ...]:
+def _scene_seeds(seed: int, count: int) -> tuple[int, ...]:
     """The generator seeds of a draw's scenes: 401... for the suite's draw, others from 10_000 on (never a tuned
     suite's)."""
     first = _FIRST_SEED if seed == BLIND_SEED else _OTHER_DRAWS_FIRST_SEED + 10 * (seed % 100_000)
@@ -96,4 +96,4 @@ def draw_blind_scenes(seed: int = BLIND_SEED, count: int = BLIND_SCENES) -> tupl
     rng = random.Random(seed)
     suffix = 'b{}' if seed == BLIND_SEED else f'd{seed}_{{}}'
     return tuple(_draw_one(rng, index, scene_seed, suffix.format(index))
-                 for index, scene_seed in enumerate(scene_seeds(seed, count)))
+                 for index, scene_seed in enumerate(_scene_seeds(seed, count)))

@@ -29,8 +29,7 @@ from fruitnerfpp_ros.core.training.losses import fruit_transparency, opacity_ent
 from fruitnerfpp_ros.core.training.model import FruitNeRFModel
 
 __all__ = ['ParamGroup', 'StepLosses', 'TrainingStage', 'GeometryStage', 'SemanticStage', 'InstanceStage',
-           'build_stages', 'contrastive_views', 'instance_stage_masks', 'stages_the_masks_allow',
-           'STAGE_NAMES']
+           'build_stages', 'stages_the_masks_allow', 'STAGE_NAMES']
 
 STAGE_NAMES = ('geometry', 'semantic', 'instance')
 
@@ -208,7 +207,7 @@ class InstanceStage:
         self.config = config
         self.iterations = cfg.iterations
         self.sampler = None if self.iterations == 0 else \
-            GroupInstanceSampler(dataset.train_indices, instance_stage_masks(config, dataset), groups=cfg.groups,
+            GroupInstanceSampler(dataset.train_indices, _instance_masks(config, dataset), groups=cfg.groups,
                                  group_size=cfg.group_size, pixels_per_fruit=cfg.pixels_per_fruit,
                                  min_pixels=config.data.min_fruit_pixels)
 
@@ -229,7 +228,7 @@ class InstanceStage:
                           {'contrastive_loss': contrastive.detach()}, out.num_samples / max(len(pixels.view), 1))
 
 
-def instance_stage_masks(config: TrainConfig, dataset: SceneDataset) -> torch.Tensor:
+def _instance_masks(config: TrainConfig, dataset: SceneDataset) -> torch.Tensor:
     """[V, H, W] the instance masks the group sampler draws from (their interior with ``instance.interior``)."""
     masks = dataset.instance_masks
     if config.instance.interior:
@@ -237,11 +236,11 @@ def instance_stage_masks(config: TrainConfig, dataset: SceneDataset) -> torch.Te
     return masks
 
 
-def contrastive_views(config: TrainConfig, dataset: SceneDataset) -> int:
-    """How many training views the instance stage can draw from: two or more fruits of at least
-    ``data.min_fruit_pixels`` pixels each in the view's (interior) instance mask."""
-    masks = instance_stage_masks(config, dataset)
-    return sum(index_view_fruits(int(i), masks[int(i)], config.data.min_fruit_pixels) is not None
+def _can_contrast(config: TrainConfig, dataset: SceneDataset) -> bool:
+    """Whether a training view gives the instance stage two fruits of at least ``data.min_fruit_pixels`` pixels
+    each in its (interior) instance mask (the search stops at the first such view)."""
+    masks = _instance_masks(config, dataset)
+    return any(index_view_fruits(int(i), masks[int(i)], config.data.min_fruit_pixels) is not None
                for i in dataset.train_indices)
 
 
@@ -255,7 +254,7 @@ def stages_the_masks_allow(config: TrainConfig, dataset: SceneDataset) -> TrainC
                     'is 0). Check the masks (their source, topic or model)', views)
         return dataclasses.replace(config, **{name: dataclasses.replace(getattr(config, name), iterations=0)
                                               for name in STAGE_NAMES})
-    if config.instance.iterations > 0 and contrastive_views(config, dataset) == 0:
+    if config.instance.iterations > 0 and not _can_contrast(config, dataset):
         log.warning('no training view shows two fruits (%d views; a fruit of at least %d pixels): the instance field '
                     'is not trained (instance.iterations 0 in the run\'s config), and the count tells fruits apart by '
                     'their positions alone (touching fruits count as one)', views, config.data.min_fruit_pixels)
@@ -273,7 +272,7 @@ def build_stages(config: TrainConfig, dataset: SceneDataset,
 
     Raises:
         DatasetError: no training view to draw rays from, or (``instance.iterations`` > 0) none with two fruits
-            (before any step is trained; :func:`contrastive_views` says so beforehand).
+            (before any step is trained; :func:`stages_the_masks_allow` takes that stage out beforehand).
     """
     drawable = background = None
     if aabb is not None and config.data.rays_through_box:
